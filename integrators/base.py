@@ -1,0 +1,52 @@
+"""Shared pieces of the integrator templates: common parameters and the plugin boilerplate."""
+from __future__ import annotations
+
+import drjit as dr
+import mitsuba as mi
+
+from .common import lnot
+from .params import Param, read
+
+MAX_DEPTH = Param("max_depth", "int", -1, min=0, allow=(-1,),
+                  doc="Longest path depth (-1: unlimited; 1: emitters seen directly; "
+                      "2: direct light), Mitsuba's meaning.")
+RR_DEPTH = Param("rr_depth", "int", 5, min=1,
+                 doc="Path depth at which Russian roulette starts.")
+
+
+class IntegratorTemplate:
+    """Base of our integrator templates (made into ``mi.SamplingIntegrator`` subclasses)."""
+
+    PARAMS: tuple = ()
+    NAME = "integrator"
+
+    def __init__(self, props):
+        self._base.__init__(self, props)
+        self.params = read(self.NAME, self.PARAMS, props)
+        for k, v in self.params.items():
+            setattr(self, k, v)
+        self.setup()
+
+    def setup(self):
+        """Derived state from ``self.params`` (override)."""
+
+    def aov_names(self):
+        return []
+
+    def to_string(self):
+        body = ",\n".join(f"  {k} = {v!r}" for k, v in self.params.items())
+        return f"{type(self).__name__}[\n{body}\n]"
+
+
+def russian_roulette(beta, eta, depth, rr_depth, u, active):
+    """Throughput-based Russian roulette, as in Mitsuba's ``path`` and pbrt.
+
+    From ``depth >= rr_depth`` on, a path survives with probability
+    q = min(max(beta) * eta^2, 0.95) and its throughput is divided by q, so the expected
+    contribution is unchanged.  Returns (beta, active)."""
+    beta_max = dr.max(mi.unpolarized_spectrum(beta), axis=0)
+    q = dr.minimum(beta_max * dr.square(eta), 0.95)
+    rr_active = depth >= rr_depth
+    beta = dr.select(rr_active, beta * dr.rcp(dr.select(q > 0, q, 1.0)), beta)
+    active = active & (beta_max != 0) & (lnot(rr_active) | (u < q))
+    return beta, active

@@ -1,0 +1,100 @@
+r"""Integrator ``bsdf_path``: the lecture's "general path tracing" (no light sampling).
+
+    beta = 1;  at every vertex: L += beta L_e;  draw omega from p;  beta *= f cos / p
+
+Emitted radiance is added whenever the path hits an emitter (or escapes to an environment
+emitter); there is no next-event estimation, so small lights are found only by chance.  The
+direction at each vertex comes from ``hemisphere``:
+
+* ``uniform``: p = 1 / (2 pi) over the hemisphere on the side of the incident direction;
+* ``cosine``: p = cos(theta) / pi over that hemisphere;
+* ``bsdf``: the BSDF's own importance sampling (``BSDF.sample``), the default.
+
+With ``uniform`` or ``cosine``, a BSDF that transmits gets the whole sphere (each hemisphere with
+probability 1/2), and a BSDF with a delta (specular) lobe is sampled with ``BSDF.sample`` at that
+vertex, since no density over directions can hit a delta lobe.
+
+Path length: ``max_depth`` (-1 unlimited) and throughput-based Russian roulette from ``rr_depth``
+(survival min(max(beta) eta^2, 0.95), throughput divided by it: unbiased).
+"""
+from __future__ import annotations
+
+import drjit as dr
+import mitsuba as mi
+
+from .base import MAX_DEPTH, RR_DEPTH, IntegratorTemplate, russian_roulette
+from .common import bsdf_at, depth_limit, emitted, is_jit, lnot
+from .params import Param
+from .registry import plugin
+
+HEMISPHERE = ("uniform", "cosine", "bsdf")
+
+
+@plugin("bsdf_path", "integrator")
+class BSDFPath(IntegratorTemplate):
+    """Path tracing that finds light only by hitting it (uniform, cosine or BSDF sampling)."""
+
+    PARAMS = (
+        MAX_DEPTH, RR_DEPTH,
+        Param("hemisphere", "choice", "bsdf", choices=HEMISPHERE,
+              doc="Direction sampling at each vertex."),
+    )
+
+    def sample_direction(self, ctx, bsdf, si, sampler, active):
+        """One direction at ``si``: returns (wo local, f cos / pdf, eta)."""
+        s1, s2 = sampler.next_1d(active), sampler.next_2d(active)
+        if bsdf is None:  # scalar variants, no surface
+            return mi.Vector3f(0, 0, 1), mi.Spectrum(0.0), mi.Float(1.0)
+        if self.hemisphere == "bsdf":
+            bs, weight = bsdf.sample(ctx, si, s1, s2, active)
+            return bs.wo, weight, bs.eta
+        flags = bsdf.flags()
+        use_bsdf = mi.has_flag(flags, mi.BSDFFlags.Delta)
+        sphere = mi.has_flag(flags, mi.BSDFFlags.Transmission)
+        if self.hemisphere == "uniform":
+            wo = mi.warp.square_to_uniform_hemisphere(s2)
+            pdf = mi.Float(dr.inv_two_pi)
+        else:
+            wo = mi.warp.square_to_cosine_hemisphere(s2)
+            pdf = wo.z * dr.inv_pi
+        side = dr.select(mi.Frame3f.cos_theta(si.wi) < 0, -1.0, 1.0)
+        flip = sphere & (s1 < 0.5)
+        wo.z = wo.z * dr.select(flip, -side, side)
+        pdf = pdf * dr.select(sphere, 0.5, 1.0)
+        value = bsdf.eval(ctx, si, wo, active & lnot(use_bsdf))
+        weight = dr.select(pdf > 0, value / dr.select(pdf > 0, pdf, 1.0), 0.0)
+        eta = mi.Float(1.0)
+        if is_jit() or use_bsdf:
+            bs, w_b = bsdf.sample(ctx, si, s1, s2, active & use_bsdf)
+            wo = dr.select(use_bsdf, bs.wo, wo)
+            weight = dr.select(use_bsdf, w_b, weight)
+            eta = dr.select(use_bsdf, bs.eta, eta)
+        return wo, weight, eta
+
+    @dr.syntax
+    def sample(self, scene, sampler, ray, medium=None, active=True):
+        ctx = mi.BSDFContext()
+        ray = mi.Ray3f(ray)
+        active = mi.Bool(active)
+        L = mi.Spectrum(0.0)
+        beta = mi.Spectrum(1.0)
+        eta = mi.Float(1.0)
+        depth = mi.UInt32(0)
+        max_depth = depth_limit(self.max_depth)
+        si = scene.ray_intersect(ray, active)
+        valid = si.is_valid()
+
+        while dr.hint(active, label="bsdf_path"):
+            L += beta * emitted(scene, si, active)
+            active &= si.is_valid() & (depth + 1 < max_depth)
+            bsdf = bsdf_at(si, ray, active)
+            wo, weight, eta_v = self.sample_direction(ctx, bsdf, si, sampler, active)
+            beta *= weight
+            eta *= eta_v
+            depth += 1
+            beta, active = russian_roulette(beta, eta, depth, self.rr_depth,
+                                            sampler.next_1d(active), active)
+            ray = si.spawn_ray(si.to_world(wo))
+            si = scene.ray_intersect(ray, active)
+
+        return L, valid, []
