@@ -125,7 +125,7 @@ def read(plugin: str, specs: Sequence[Param], props) -> dict[str, Any]:
     for s in specs:
         if s.kind in ("texture", "spectrum"):
             continue
-        value = props.get(s.name, s.default) if props.has_property(s.name) else s.default
+        value = props.get(s.name, s.default) if s.name in props else s.default
         out[s.name] = check(plugin, s, value)
     return out
 

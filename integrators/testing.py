@@ -1,0 +1,135 @@
+r"""Statistical testing of estimators against closed forms.
+
+Method (used by the test suite and meant for users' own integrators):
+
+* **Measurement.** A ``radiancemeter`` sensor (one ray, 1x1 film, box filter) looks at a point
+  whose radiance is known in closed form.  The scene is rendered ``batches`` times with distinct
+  seeds and ``spp`` samples each, giving K independent batch means x_1..x_K per channel.
+* **Null hypothesis H0:** the estimator is unbiased, E[x_k] = mu (the closed form).
+* **Statistic:** Student's t = (mean(x) - mu) / (s / sqrt(K)) with K-1 degrees of freedom,
+  per colour channel.  Batch means of thousands of samples are close to normal even where
+  single samples are heavy-tailed (Russian roulette, rare light hits), which is why we test batch
+  means and not per-sample values.
+* **Significance:** a check is rejected when the Sidak-combined p-value over its channels,
+  1 - (1 - min p)^C, is below ``alpha`` (default 1e-4 per check).  The default suite makes well
+  under 100 such checks, so its family-wise false-failure rate is below 100 * 1e-4 = 1 %.
+* **Power:** each check also reports the relative standard error of the mean; tests assert it is
+  small enough (e.g. < 0.5 %) that a bias of a few percent gives |t| >> critical value, so a
+  check cannot pass merely because it is too noisy to see anything.
+
+Closed forms: :func:`lambert_polygon_irradiance` (Lambert's formula for a uniformly emitting
+polygon), :func:`point_light_irradiance`, :func:`closed_sphere_radiance` (the geometric series).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+from scipy import stats
+
+DEFAULT_ALPHA = 1e-4
+
+
+# ---------------------------------------------------------------------------------------------
+# closed forms
+def lambert_polygon_irradiance(p, n, vertices) -> float:
+    """Irradiance at ``p`` (normal ``n``) from a polygon of unit radiance (Lambert 1760).
+
+    E = 1/2 sum_i Theta_i (n . g_i), Theta_i the angle the i-th edge subtends at p and g_i the
+    unit normal of the plane through p and that edge.  The polygon must lie entirely above the
+    tangent plane of p (no clipping is done) and face p."""
+    p, n = np.asarray(p, float), np.asarray(n, float)
+    r = [np.asarray(v, float) - p for v in vertices]
+    r = [v / np.linalg.norm(v) for v in r]
+    total = 0.0
+    for i in range(len(r)):
+        a, b = r[i], r[(i + 1) % len(r)]
+        theta = math.acos(float(np.clip(np.dot(a, b), -1, 1)))
+        g = np.cross(a, b)
+        g /= np.linalg.norm(g)
+        total += theta * float(np.dot(n, g))
+    return abs(0.5 * total)
+
+
+def rectangle_vertices(to_world: "mi.ScalarTransform4f"):
+    """World-space corners of Mitsuba's ``rectangle`` shape ([-1,1]^2 at z=0) under to_world."""
+    corners = [(-1, -1, 0), (1, -1, 0), (1, 1, 0), (-1, 1, 0)]
+    return [np.array(to_world @ mi.ScalarPoint3f(*c), dtype=float) for c in corners]
+
+
+def point_light_irradiance(p, n, light_pos, intensity: float) -> float:
+    d = np.asarray(light_pos, float) - np.asarray(p, float)
+    dist2 = float(np.dot(d, d))
+    cos = float(np.dot(np.asarray(n, float), d)) / math.sqrt(dist2)
+    return intensity * max(cos, 0.0) / dist2
+
+
+def closed_sphere_radiance(le: float, rho: float, max_depth: int = -1) -> float:
+    """Radiance inside a closed diffuse sphere (albedo rho) emitting le everywhere.
+
+    Every bounce sees the same emission: L = le sum_{k < max_depth} rho^k (-1: le / (1-rho))."""
+    if max_depth < 0:
+        return le / (1.0 - rho)
+    return le * sum(rho ** k for k in range(max_depth))
+
+
+# ---------------------------------------------------------------------------------------------
+# measurement
+def radiancemeter(target, origin, spp: int) -> dict:
+    """Sensor dict measuring the radiance leaving ``target`` towards ``origin``."""
+    target, origin = np.asarray(target, float), np.asarray(origin, float)
+    d = target - origin
+    return {"type": "radiancemeter", "origin": origin.tolist(),
+            "direction": (d / np.linalg.norm(d)).tolist(),
+            "film": {"type": "hdrfilm", "width": 1, "height": 1, "rfilter": {"type": "box"},
+                     "pixel_format": "rgb"},
+            "sampler": {"type": "independent", "sample_count": spp}}
+
+
+def batch_means(scene, integrator, batches: int = 32, spp: int = 8192, seed0: int = 0,
+                sensor: int = 0) -> np.ndarray:
+    """(batches, channels) array of independent per-render means (distinct seeds)."""
+    out = []
+    for k in range(batches):
+        img = mi.render(scene, integrator=integrator, spp=spp, seed=seed0 + k, sensor=sensor)
+        out.append(np.array(img, dtype=np.float64).reshape(-1, np.array(img).shape[-1]).mean(0))
+    return np.array(out)
+
+
+@dataclass
+class MeanTest:
+    mean: np.ndarray
+    expected: np.ndarray
+    rel_se: float          # largest relative standard error over channels
+    p_value: float         # Sidak-combined over channels
+    alpha: float
+
+    @property
+    def passed(self) -> bool:
+        return self.p_value >= self.alpha
+
+    def __str__(self):
+        return (f"mean {np.array2string(self.mean, precision=5)} vs expected "
+                f"{np.array2string(self.expected, precision=5)}: p = {self.p_value:.3g} "
+                f"(alpha {self.alpha:g}), relative s.e. {100 * self.rel_se:.3f} %")
+
+
+def mean_test(x: np.ndarray, expected, alpha: float = DEFAULT_ALPHA) -> MeanTest:
+    """Student t-test of H0: E[x] = expected, per channel, Sidak-combined over channels."""
+    x = np.atleast_2d(np.asarray(x, dtype=np.float64))
+    k, c = x.shape
+    expected = np.broadcast_to(np.asarray(expected, dtype=np.float64), (c,))
+    mean = x.mean(0)
+    se = x.std(0, ddof=1) / math.sqrt(k)
+    if not np.all(np.isfinite(x)):
+        return MeanTest(mean, expected, float("inf"), 0.0, alpha)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = (mean - expected) / se
+    p = np.where(se > 0, 2 * stats.t.sf(np.abs(t), df=k - 1),
+                 np.where(np.isclose(mean, expected, rtol=1e-6, atol=1e-9), 1.0, 0.0))
+    p_comb = 1.0 - (1.0 - float(np.min(p))) ** c
+    scale = np.maximum(np.abs(expected), 1e-12)
+    return MeanTest(mean, expected, float(np.max(se / scale)), p_comb, alpha)
