@@ -3,11 +3,13 @@ r"""Light selection: a discrete pdf over the scene's emitters, shared by every i
 ``uniform``  p(j) = 1 / number of emitters.
 ``power``    p(j) proportional to the emitted power Phi_j.
 
-Power is measured with each emitter's own ``sample_ray`` (the weight of an emitted ray is
-Phi / pdf, so its mean over a fixed low-discrepancy point set is Phi).  This gives exactly the
-closed forms of the plugins Mitsuba ships, with no per-type code here:
+Power is measured with Mitsuba's own sampling routines over a fixed low-discrepancy point set:
+area lights by uniform positions on their shape, every other emitter by ``sample_ray`` (the
+weight of an emitted ray is Phi / pdf, so its mean is Phi).  This gives the closed forms of the
+plugins Mitsuba ships, with no per-type code here:
 
-* area light: pi * \int L_e dA (a textured emitter: pi * area * mean radiance),
+* area light: pi * \int L_e dA by uniform points on its shape (a textured emitter: pi * area *
+  mean radiance),
 * point light: 4 pi I; spot light: I integrated over its cone, falloff included,
 * infinite emitters (``constant``, ``envmap``, ``directional``): power through the scene's
   bounding sphere (pi * L * 4 pi r^2 for a constant environment, pi r^2 E for a directional).
@@ -53,25 +55,48 @@ def _r2(n: int, dim: int, offset: int = 0) -> np.ndarray:
     return np.mod(0.5 + i * alpha[None, :], 1.0)
 
 
-def emitter_power(emitter, n: int | None = None) -> float:
-    """Emitted power of one emitter, averaged over spectral channels."""
+def _u(n: int, dim: int):
+    """n low-discrepancy points in [0,1)^dim as a list of columns (JIT arrays or floats)."""
+    u = np.minimum(_r2(n, dim).astype(np.float32), np.float32(1 - 2**-24))
+    return [mi.Float(u[:, k]) for k in range(dim)] if is_jit() else u
+
+
+def _mean(fn, n: int) -> float:
+    """Mean of the per-sample Float values returned by ``fn(columns)``."""
     if is_jit():
-        n = n or POWER_SAMPLES_JIT
-        u = _r2(n, 5).astype(np.float32)
-        u = np.minimum(u, np.float32(1 - 2**-24))
-        _, w = emitter.sample_ray(0.0, mi.Float(u[:, 0]), mi.Point2f(u[:, 1], u[:, 2]),
-                                  mi.Point2f(u[:, 3], u[:, 4]), True)
-        vals = np.array(channel_mean(w), dtype=np.float64).ravel()
+        vals = np.array(fn(_u(n, 5)), dtype=np.float64).ravel()
     else:
-        n = n or POWER_SAMPLES_SCALAR
-        u = _r2(n, 5)
-        vals = np.empty(n)
-        for k in range(n):
-            _, w = emitter.sample_ray(0.0, float(u[k, 0]), mi.Point2f(u[k, 1], u[k, 2]),
-                                      mi.Point2f(u[k, 3], u[k, 4]), True)
-            vals[k] = float(channel_mean(w))
+        u = _u(n, 5)
+        vals = np.array([float(fn([float(c) for c in row])) for row in u])
     vals = vals[np.isfinite(vals)]
     return float(np.mean(vals)) if vals.size else 0.0
+
+
+def emitter_power(emitter, n: int | None = None) -> float:
+    """Emitted power of one emitter, averaged over spectral channels."""
+    n = n or (POWER_SAMPLES_JIT if is_jit() else POWER_SAMPLES_SCALAR)
+    shape = emitter.get_shape()
+    if shape is not None:
+        # area light: Phi = pi * int L_e dA (Lambertian emission), by uniform points on the
+        # shape; works for textured radiance too, which cannot always sample_ray
+        def area_sample(u):
+            ps = shape.sample_position(0.0, mi.Point2f(u[0], u[1]))
+            si = dr.zeros(mi.SurfaceInteraction3f)
+            si.p, si.n, si.uv, si.time = ps.p, ps.n, ps.uv, ps.time
+            si.sh_frame = mi.Frame3f(ps.n)
+            si.wi = mi.Vector3f(0.0, 0.0, 1.0)
+            if mi.is_spectral:
+                si.wavelengths, _ = mi.sample_rgb_spectrum(mi.sample_shifted(u[2]))
+            le = emitter.eval(si, True)
+            inv = dr.select(ps.pdf > 0, dr.rcp(ps.pdf), 0.0)
+            return channel_mean(le) * inv * dr.pi
+        return _mean(area_sample, n)
+
+    # other emitters: the weight of an emitted ray is Phi / pdf
+    def ray_sample(u):
+        _, w = emitter.sample_ray(0.0, u[0], mi.Point2f(u[1], u[2]), mi.Point2f(u[3], u[4]), True)
+        return channel_mean(w)
+    return _mean(ray_sample, n)
 
 
 def selection_pmf(scene, mode: str) -> np.ndarray:
