@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import drjit as dr
 import mitsuba as mi
+import numpy as np
 
 from .common import channel_mean
 from .params import Param, ParameterError, read
@@ -135,7 +136,8 @@ class Phong:
         if en_d and en_g:
             pick_glossy = sample1 < self._glossy_prob(si, active)
         else:
-            pick_glossy = mi.Bool(en_g)
+            # full-width mask, so every field of the sample has the width of the query
+            pick_glossy = (sample1 >= 0.0) if en_g else (sample1 < 0.0)
         wo_d = mi.warp.square_to_cosine_hemisphere(sample2)
         # glossy: cos(alpha) = u^(1/(e+1)) around the mirror direction
         cos_a = dr.power(sample2.x, 1.0 / (self.exponent + 1.0))
@@ -171,12 +173,10 @@ class Phong:
 
 def _texture_min(tex):
     """Smallest value of a constant texture (None when it varies spatially)."""
-    try:
-        if tex.is_spatially_varying():
-            return None
-        si = dr.zeros(mi.SurfaceInteraction3f)
-        if mi.is_spectral:
-            si.wavelengths = mi.Spectrum(550.0)
-        return float(dr.min(mi.unpolarized_spectrum(tex.eval(si)), axis=None))
-    except Exception:  # some textures cannot be evaluated without a surface
+    if tex.is_spatially_varying():
         return None
+    si = dr.zeros(mi.SurfaceInteraction3f)
+    if mi.is_spectral:
+        si.wavelengths = mi.Spectrum(550.0)
+    value = np.array(mi.unpolarized_spectrum(tex.eval(si)), dtype=np.float64)
+    return float(value.min())
