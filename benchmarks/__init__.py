@@ -1,0 +1,1 @@
+"""Benchmarks of the integrators against Mitsuba's built-ins (``python -m benchmarks.speed``)."""
