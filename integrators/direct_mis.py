@@ -24,7 +24,7 @@ import mitsuba as mi
 
 from . import light_selection, mis
 from .base import IntegratorTemplate
-from .common import bsdf_at, emitted, is_jit, lnot
+from .common import bsdf_at, bsdf_flags, emitted, is_jit, lnot
 from .params import Param
 from .registry import plugin
 
@@ -55,7 +55,9 @@ class DirectMIS(IntegratorTemplate):
         bsdf = bsdf_at(si, ray, active)
         n_l = self.light_samples if sel.count > 0 else 0
         if n_l > 0:
-            L += self.light_estimate(scene, sel, sampler, ctx, si, bsdf, n_l, active)
+            # a surface without a smooth lobe (a mirror) gets nothing from light samples
+            smooth = mi.has_flag(bsdf_flags(bsdf), mi.BSDFFlags.Smooth)
+            L += self.light_estimate(scene, sel, sampler, ctx, si, bsdf, n_l, active & smooth)
         if self.bsdf_samples > 0:
             L += self.bsdf_estimate(scene, sel, sampler, ctx, si, bsdf, n_l, active)
         return L, valid, []
