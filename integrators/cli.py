@@ -32,8 +32,8 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("scene", help="scene XML file")
     r.add_argument("-D", dest="defines", action="append", default=[], metavar="NAME=VALUE",
                    help="set an XML $NAME default (repeatable)")
-    r.add_argument("--spp", type=_positive_int("--spp"), help="samples per pixel (default: scene's)")
-    r.add_argument("--seed", type=_nonneg_int("--seed"), default=0, help="sampler seed")
+    r.add_argument("--spp", type=_int_arg("--spp", 1), help="samples per pixel (default: scene's)")
+    r.add_argument("--seed", type=_int_arg("--seed", 0), default=0, help="sampler seed")
     r.add_argument("-o", "--output", help="output EXR (default: SCENE name in the current dir)")
     r.add_argument("--variant", help="Mitsuba variant (default: llvm_ad_rgb)")
     r.add_argument("--debug", action="store_true", help="show Python tracebacks")
@@ -42,26 +42,15 @@ def _parser() -> argparse.ArgumentParser:
     return p
 
 
-def _positive_int(flag):
+def _int_arg(flag, minimum):
     def conv(s):
         try:
             v = int(s)
         except ValueError:
             raise argparse.ArgumentTypeError(f"{flag} = {s!r} is not an integer") from None
-        if v <= 0:
-            raise argparse.ArgumentTypeError(f"{flag} = {v} must be a positive integer")
-        return v
-    return conv
-
-
-def _nonneg_int(flag):
-    def conv(s):
-        try:
-            v = int(s)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{flag} = {s!r} is not an integer") from None
-        if v < 0:
-            raise argparse.ArgumentTypeError(f"{flag} = {v} must be >= 0")
+        if v < minimum:
+            word = "a positive integer" if minimum == 1 else f"an integer >= {minimum}"
+            raise argparse.ArgumentTypeError(f"{flag} = {v} must be {word}")
         return v
     return conv
 
