@@ -22,9 +22,9 @@ from __future__ import annotations
 import drjit as dr
 import mitsuba as mi
 
-from . import light_selection, mis
+from . import light_selection, mis, nee
 from .base import IntegratorTemplate
-from .common import bsdf_at, bsdf_flags, emitted, is_jit, lnot
+from .common import bsdf_at, bsdf_flags, emitted, is_jit
 from .params import Param
 from .registry import plugin
 
@@ -57,27 +57,11 @@ class DirectMIS(IntegratorTemplate):
         if n_l > 0:
             # a surface without a smooth lobe (a mirror) gets nothing from light samples
             smooth = mi.has_flag(bsdf_flags(bsdf), mi.BSDFFlags.Smooth)
-            L += self.light_estimate(scene, sel, sampler, ctx, si, bsdf, n_l, active & smooth)
+            L += nee.light_estimate(scene, sel, self.heur, sampler, ctx, si, bsdf, n_l,
+                                    self.bsdf_samples, active & smooth)
         if self.bsdf_samples > 0:
             L += self.bsdf_estimate(scene, sel, sampler, ctx, si, bsdf, n_l, active)
         return L, valid, []
-
-    @dr.syntax
-    def light_estimate(self, scene, sel, sampler, ctx, si, bsdf, n_l, active):
-        n_b = self.bsdf_samples
-        L = mi.Spectrum(0.0)
-        j = mi.UInt32(0)
-        while dr.hint(j < n_l, label="direct_mis light samples"):
-            s1, s2 = sampler.next_1d(active), sampler.next_2d(active)
-            if is_jit() or active:
-                ds, em_weight = sel.sample_direction(si, s1, s2, active)
-                act = active & dr.any(em_weight != 0)
-                visible = lnot(scene.ray_test(si.spawn_ray_to(ds.p), act))
-                f, pdf_b = bsdf.eval_pdf(ctx, si, si.to_local(ds.d), act & visible)
-                w = dr.select(ds.delta, 1.0, self.heur.weight(0, [n_l * ds.pdf, n_b * pdf_b]))
-                L += dr.select(act & visible, f * em_weight * w, 0.0)
-            j += 1
-        return L / n_l
 
     @dr.syntax
     def bsdf_estimate(self, scene, sel, sampler, ctx, si, bsdf, n_l, active):
@@ -91,8 +75,7 @@ class DirectMIS(IntegratorTemplate):
                 act = active & dr.any(weight != 0)
                 si_l = scene.ray_intersect(si.spawn_ray(si.to_world(bs.wo)), act)
                 delta = mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta)
-                pdf_l = sel.pdf_direction(si, si_l, act & lnot(delta))
-                w = dr.select(delta, 1.0, self.heur.weight(1, [n_l * pdf_l, n_b * bs.pdf]))
+                w = nee.emission_weight(self.heur, sel, n_l, n_b, si, si_l, bs.pdf, delta, act)
                 L += dr.select(act, weight * emitted(scene, si_l, act) * w, 0.0)
             j += 1
         return L / n_b

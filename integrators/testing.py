@@ -143,3 +143,57 @@ def mean_test(x: np.ndarray, expected, alpha: float = DEFAULT_ALPHA,
     p_comb = 1.0 - (1.0 - float(np.min(p))) ** c
     scale = np.maximum(np.abs(expected), 1e-12)
     return MeanTest(mean, expected, float(np.max(se / scale)), p_comb, alpha)
+
+
+# ---------------------------------------------------------------------------------------------
+# image against image (two estimators of the same image, each with its own variance)
+def batch_images(scene, integrator, batches: int = 16, spp: int = 256, seed0: int = 0):
+    """(batches, H, W, C) array of independent renders (distinct seeds)."""
+    return np.array([np.array(mi.render(scene, integrator=integrator, spp=spp, seed=seed0 + k))
+                     for k in range(batches)], dtype=np.float64)
+
+
+@dataclass
+class ImageTest:
+    p_value: float          # Sidak-combined over all blocks and channels
+    worst_block: tuple      # (row, col, channel) of the smallest p
+    rel_diff: float         # relative difference of the image means
+    alpha: float
+
+    @property
+    def passed(self) -> bool:
+        return self.p_value >= self.alpha
+
+    def __str__(self):
+        return (f"p = {self.p_value:.3g} (alpha {self.alpha:g}), worst block {self.worst_block}, "
+                f"image means differ by {100 * self.rel_diff:.3f} %")
+
+
+def image_test(a: np.ndarray, b: np.ndarray, block: int = 4,
+               alpha: float = DEFAULT_ALPHA) -> ImageTest:
+    """H0: two estimators have the same expected image.
+
+    Pixels are averaged over ``block`` x ``block`` blocks (so heavy-tailed single pixels do not
+    break the normal approximation), Welch's t-test compares the batch means of each block and
+    channel, and the smallest p-value is Sidak-corrected over all blocks and channels.  Each
+    side's own variance enters, so a noisy reference does not cause false failures."""
+    def blocks(x):
+        k, h, w, c = x.shape
+        h2, w2 = h // block, w // block
+        x = x[:, :h2 * block, :w2 * block].reshape(k, h2, block, w2, block, c)
+        return x.mean(axis=(2, 4))
+    ba, bb = blocks(a), blocks(b)
+    ma, mb = ba.mean(0), bb.mean(0)
+    va, vb = ba.var(0, ddof=1) / ba.shape[0], bb.var(0, ddof=1) / bb.shape[0]
+    floor = (FLOAT32_RTOL * np.maximum(np.abs(ma), np.abs(mb))) ** 2
+    se2 = va + vb + floor
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = (ma - mb) / np.sqrt(se2)
+        dof = se2 ** 2 / (va ** 2 / (ba.shape[0] - 1) + vb ** 2 / (bb.shape[0] - 1) + 1e-300)
+    dof = np.clip(np.nan_to_num(dof, nan=1.0), 1.0, 1e6)
+    p = np.where(se2 > 0, 2 * stats.t.sf(np.abs(np.nan_to_num(t)), dof),
+                 np.where(ma == mb, 1.0, 0.0))
+    i = np.unravel_index(int(np.argmin(p)), p.shape)
+    p_comb = float(-np.expm1(p.size * np.log1p(-min(float(p[i]), 1 - 1e-16))))
+    rel = float(abs(a.mean() - b.mean()) / max(abs(b.mean()), 1e-12))
+    return ImageTest(p_comb, tuple(int(x) for x in i), rel, alpha)

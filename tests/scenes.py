@@ -60,3 +60,17 @@ def closed_sphere_scene(rho, le, spp=4096):
                       "bsdf": {"type": "diffuse", "reflectance": rho},
                       "emitter": {"type": "area", "radiance": le}},
             "sensor": testing.radiancemeter((0.0, 0.0, -1.0), (0.1, 0.2, 0.3), spp)}
+
+
+def closed_box_scene(rho, le, spp=4096):
+    """Camera inside a closed diffuse cube (normals inward) that emits le everywhere.
+
+    Integrators with light sampling are tested here rather than in the sphere: for a point on a
+    sphere emitter itself, Mitsuba's sphere ``sample_direction`` pdf and ``pdf_direction``
+    disagree, which biases MIS slightly with the power heuristic (Mitsuba's own ``path`` gives
+    2.0011 for 2) and a lot with the discontinuous ``maximum`` heuristic (1.54)."""
+    return {"type": "scene",
+            "box": {"type": "cube", "flip_normals": True,
+                    "bsdf": {"type": "diffuse", "reflectance": rho},
+                    "emitter": {"type": "area", "radiance": le}},
+            "sensor": testing.radiancemeter((0.0, 0.0, -1.0), (0.1, 0.2, 0.3), spp)}
