@@ -38,15 +38,33 @@ class IntegratorTemplate:
         return f"{type(self).__name__}[\n{body}\n]"
 
 
-def russian_roulette(beta, eta, depth, rr_depth, u, active):
-    """Throughput-based Russian roulette, as in Mitsuba's ``path`` and pbrt.
+RR_MODES = ("none", "fixed", "throughput")
 
-    From ``depth >= rr_depth`` on, a path survives with probability
-    q = min(max(beta) * eta^2, 0.95) and its throughput is divided by q, so the expected
-    contribution is unchanged.  Returns (beta, active)."""
+RR_PARAMS = (
+    RR_DEPTH,
+    Param("rr", "choice", "throughput", choices=RR_MODES,
+          doc="Russian roulette: none, fixed termination probability, or from the throughput."),
+    Param("rr_prob", "float", 0.5, min=0.0, max=0.99,
+          doc="Termination probability of rr=fixed."),
+)
+
+
+def roulette(mode: str, rr_depth: int, rr_prob: float, beta, eta, depth, u, active):
+    """Russian roulette of the given mode; returns (beta, active).  Unbiased: survivors are
+    divided by their survival probability."""
     beta_max = dr.max(mi.unpolarized_spectrum(beta), axis=0)
-    q = dr.minimum(beta_max * dr.square(eta), 0.95)
+    active = active & (beta_max != 0)
+    if mode == "none":
+        return beta, active
+    if mode == "fixed":
+        q = mi.Float(1.0 - rr_prob)
+    else:
+        q = dr.minimum(beta_max * dr.square(eta), 0.95)
     rr_active = depth >= rr_depth
     beta = dr.select(rr_active, beta * dr.rcp(dr.select(q > 0, q, 1.0)), beta)
-    active = active & (beta_max != 0) & (lnot(rr_active) | (u < q))
-    return beta, active
+    return beta, active & (lnot(rr_active) | (u < q))
+
+
+def russian_roulette(beta, eta, depth, rr_depth, u, active):
+    """Throughput-based Russian roulette (Mitsuba's ``path``, pbrt); returns (beta, active)."""
+    return roulette("throughput", rr_depth, 0.0, beta, eta, depth, u, active)

@@ -32,6 +32,11 @@ def bsdf_flags(bsdf):
     return bsdf.flags()
 
 
+def any_flag(flags, mask):
+    """True where ``flags`` has any of the bits of ``mask`` (a combination of BSDFFlags)."""
+    return (flags & int(mask)) != 0
+
+
 def emitted(scene, si, active):
     """Radiance emitted towards ``-ray.d`` at ``si`` (the environment on a miss)."""
     em = si.emitter(scene)

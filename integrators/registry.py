@@ -76,4 +76,4 @@ def register_all() -> None:
 
 def _load_all() -> None:
     # importing the plugin modules fills _PLUGINS through the decorator
-    from . import phong, bsdf_path, direct_mis, nee_path  # noqa: F401
+    from . import phong, bsdf_path, direct_mis, nee_path, mis3  # noqa: F401
