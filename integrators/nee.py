@@ -19,20 +19,34 @@ import mitsuba as mi
 from .common import is_jit, lnot
 
 
+def sample_light(scene, sel, sampler, si, active):
+    """One light sample at ``si``: (ds, weight L_e G / (p(k) p_k), mask of visible samples)."""
+    s1, s2 = sampler.next_1d(active), sampler.next_2d(active)
+    ds, em_weight = sel.sample_direction(si, s1, s2, active)
+    act = active & dr.any(em_weight != 0)
+    act &= lnot(scene.ray_test(si.spawn_ray_to(ds.p), act))
+    return ds, em_weight, act
+
+
+def light_weight(heur, n_l: int, n_b: int, ds, bsdf_pdf):
+    """MIS weight of a light sample (1 for a delta light)."""
+    return dr.select(ds.delta, 1.0, heur.weight(0, [n_l * ds.pdf, n_b * bsdf_pdf]))
+
+
 @dr.syntax
 def light_estimate(scene, sel, heur, sampler, ctx, si, bsdf, n_l: int, n_b: int, active):
     """MIS-weighted estimate of direct light at ``si`` from ``n_l`` light samples."""
     L = mi.Spectrum(0.0)
     j = mi.UInt32(0)
     while dr.hint(j < n_l, label="light samples"):
-        s1, s2 = sampler.next_1d(active), sampler.next_2d(active)
         if is_jit() or active:
-            ds, em_weight = sel.sample_direction(si, s1, s2, active)
-            act = active & dr.any(em_weight != 0)
-            visible = lnot(scene.ray_test(si.spawn_ray_to(ds.p), act))
-            f, pdf_b = bsdf.eval_pdf(ctx, si, si.to_local(ds.d), act & visible)
-            w = dr.select(ds.delta, 1.0, heur.weight(0, [n_l * ds.pdf, n_b * pdf_b]))
-            L += dr.select(act & visible, f * em_weight * w, 0.0)
+            ds, em_weight, act = sample_light(scene, sel, sampler, si, active)
+            f, pdf_b = bsdf.eval_pdf(ctx, si, si.to_local(ds.d), act)
+            w = light_weight(heur, n_l, n_b, ds, pdf_b)
+            L += dr.select(act, f * em_weight * w, 0.0)
+        else:
+            sampler.next_1d()
+            sampler.next_2d()
         j += 1
     return L / n_l
 

