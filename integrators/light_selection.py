@@ -146,6 +146,11 @@ class LightSelection:
         """Selection probability of ``emitter`` (an EmitterPtr; 0 for null entries)."""
         if self.count == 0:
             return mi.Float(0.0)
+        if self.mode == "uniform":  # no table lookup: 1/n for every emitter
+            if is_jit():
+                return dr.select(active & (dr.reinterpret_array(mi.UInt32, emitter) != 0),
+                                 1.0 / self.count, 0.0)
+            return 1.0 / self.count if (emitter is not None and active) else 0.0
         if is_jit():
             ids = dr.reinterpret_array(mi.UInt32, emitter)
             return dr.gather(mi.Float, self.pmf_by_id, ids, active)
@@ -155,7 +160,11 @@ class LightSelection:
 
     def sample(self, sample1, active=True):
         """Pick an emitter: returns (EmitterPtr, selection probability)."""
-        idx, pmf = self.distr.sample_pmf(sample1, active)
+        if self.mode == "uniform":  # direct index, no search
+            idx = dr.minimum(mi.UInt32(sample1 * self.count), self.count - 1)
+            pmf = mi.Float(1.0 / self.count)
+        else:
+            idx, pmf = self.distr.sample_pmf(sample1, active)
         if is_jit():
             return dr.gather(mi.EmitterPtr, self.emitters_dr, idx, active), pmf
         return self.emitters[int(idx)], pmf
