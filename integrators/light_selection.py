@@ -158,6 +158,19 @@ class LightSelection:
             return 0.0
         return self.pmf_by_ptr.get(emitter.ptr, 0.0)
 
+    def _emitter(self, idx, active):
+        if is_jit():
+            return dr.gather(mi.EmitterPtr, self.emitters_dr, idx, active)
+        return self.emitters[int(idx)]
+
+    def choose(self, si, sample1, active=True):
+        """Pick the emitter of a light sample at ``si``: (EmitterPtr, p(j | si))."""
+        return self.sample(sample1, active)
+
+    def pmf_at(self, si, emitter, active=True):
+        """p(j | si) of ``emitter`` (the same for every point unless adaptive)."""
+        return self.pmf(emitter, active)
+
     def sample(self, sample1, active=True):
         """Pick an emitter: returns (EmitterPtr, selection probability)."""
         if self.mode == "uniform":  # direct index, no search
@@ -165,9 +178,7 @@ class LightSelection:
             pmf = mi.Float(1.0 / self.count)
         else:
             idx, pmf = self.distr.sample_pmf(sample1, active)
-        if is_jit():
-            return dr.gather(mi.EmitterPtr, self.emitters_dr, idx, active), pmf
-        return self.emitters[int(idx)], pmf
+        return self._emitter(idx, active), pmf
 
     def sample_direction(self, si, sample1, sample2, active=True):
         """Light sample in solid-angle form, selection included.
@@ -178,7 +189,7 @@ class LightSelection:
         (no visibility test)."""
         if self.count == 0:
             return dr.zeros(mi.DirectionSample3f), mi.Spectrum(0.0)
-        emitter, sel = self.sample(sample1, active)
+        emitter, sel = self.choose(si, sample1, active)
         active = active & (sel > 0)
         if not is_jit() and not active:
             return dr.zeros(mi.DirectionSample3f), mi.Spectrum(0.0)
@@ -197,7 +208,7 @@ class LightSelection:
         if not is_jit() and (emitter is None or not active):
             return 0.0
         ds = mi.DirectionSample3f(self.scene, si_hit, si_from)
-        sel = self.pmf(emitter, active)
+        sel = self.pmf_at(si_from, emitter, active)
         pdf = emitter.pdf_direction(si_from, ds, active & (sel > 0))
         return dr.select(active & (sel > 0), pdf * sel, 0.0)
 
@@ -364,44 +375,19 @@ class AdaptiveLightSelection(LightSelection):
         total = self._total(si, active)
         return self._mix(self._estimate(si, j, active), total, self.pmf(emitter, active))
 
-    def sample(self, sample1, active=True, si=None):
-        raise NotImplementedError("adaptive selection needs the shading point: "
-                                  "use sample_direction")
+    def sample(self, sample1, active=True):
+        raise NotImplementedError("adaptive selection needs the shading point: use choose")
 
-    def sample_direction(self, si, sample1, sample2, active=True):
-        if self.count == 0:
-            return dr.zeros(mi.DirectionSample3f), mi.Spectrum(0.0)
+    def choose(self, si, sample1, active=True):
         total = self._total(si, active)
         use_power = (sample1 < DEFENSIVE) | (total <= 0)
         u = dr.select(sample1 < DEFENSIVE, sample1 / DEFENSIVE,
                       (sample1 - DEFENSIVE) / (1.0 - DEFENSIVE))
         idx_p, _ = self.distr.sample_pmf(dr.minimum(u, 1.0 - 1e-7), active)
-        idx_a = self._pick(si, total, u, active)
-        idx = dr.select(use_power, idx_p, idx_a)
-        if is_jit():
-            emitter = dr.gather(mi.EmitterPtr, self.emitters_dr, idx, active)
-        else:
-            emitter = self.emitters[int(idx)]
+        idx = dr.select(use_power, idx_p, self._pick(si, total, u, active))
+        emitter = self._emitter(idx, active)
         sel = self._mix(self._estimate(si, idx, active), total, self.pmf(emitter, active))
-        active = active & (sel > 0)
-        if not is_jit() and not active:
-            return dr.zeros(mi.DirectionSample3f), mi.Spectrum(0.0)
-        ds, weight = emitter.sample_direction(si, sample2, active)
-        ds.emitter = emitter
-        ds.pdf = ds.pdf * sel
-        weight = dr.select(active, weight / dr.select(sel > 0, sel, 1.0), 0.0)
-        return ds, weight
-
-    def pdf_direction(self, si_from, si_hit, active=True):
-        if self.count == 0:
-            return mi.Float(0.0)
-        emitter = si_hit.emitter(self.scene)
-        if not is_jit() and (emitter is None or not active):
-            return 0.0
-        ds = mi.DirectionSample3f(self.scene, si_hit, si_from)
-        sel = dr.select(active, self.pmf_at(si_from, emitter, active), 0.0)
-        pdf = emitter.pdf_direction(si_from, ds, active & (sel > 0))
-        return dr.select(active & (sel > 0), pdf * sel, 0.0)
+        return emitter, sel
 
 
 def make(scene, mode: str) -> LightSelection:
