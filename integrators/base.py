@@ -35,7 +35,7 @@ class IntegratorTemplate:
 
     def to_string(self):
         body = ",\n".join(f"  {k} = {v!r}" for k, v in self.params.items())
-        return f"{type(self).__name__}[\n{body}\n]"
+        return f"{self.NAME}[\n{body}\n]"
 
 
 RR_MODES = ("none", "fixed", "throughput")

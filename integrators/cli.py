@@ -1,8 +1,14 @@
 """Command line: ``python -m integrators render|list``.
 
-    render SCENE.xml [-D name=value ...] [--spp N] [--seed S] [-o OUT.exr] [--variant V]
-        Renders with the scene's own integrator and writes OUT.exr plus OUT.png (sRGB preview).
-        -D sets the XML ``$name`` defaults, as Mitsuba's own command line does.
+    render SCENE.xml [-D name=value ...] [--spp N | --time S] [--seed S] [-o OUT.exr]
+                     [--variant V] [--checkpoint SECONDS] [--quiet]
+        Renders with the scene's own integrator, progressively in passes (see
+        integrators.progressive), and writes OUT.exr (RGB + variance layer, run description in
+        the header) plus OUT.png (sRGB preview).  -D sets the XML ``$name`` defaults, as
+        Mitsuba's own command line does.  Ctrl-C / SIGTERM finish the pass in flight, write what
+        was accumulated and exit with 130 / 143.
+    merge A.exr B.exr ... -o OUT.exr
+        Sample-weighted mean of independent runs of the same scene and integrator.
     list
         Every registered plugin with its parameters, defaults and allowed values (the same specs
         the plugins validate with).
@@ -17,6 +23,8 @@ import re
 import sys
 import time
 from pathlib import Path
+
+import numpy as np
 
 
 class UserError(Exception):
@@ -33,10 +41,19 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("-D", dest="defines", action="append", default=[], metavar="NAME=VALUE",
                    help="set an XML $NAME default (repeatable)")
     r.add_argument("--spp", type=_int_arg("--spp", 1), help="samples per pixel (default: scene's)")
+    r.add_argument("--time", type=_seconds_arg("--time"), metavar="SECONDS",
+                   help="time budget: stop after the pass that crosses it")
+    r.add_argument("--checkpoint", type=_seconds_arg("--checkpoint"), metavar="SECONDS",
+                   help="write the running estimate every SECONDS")
+    r.add_argument("--quiet", action="store_true", help="no progress bar")
     r.add_argument("--seed", type=_int_arg("--seed", 0), default=0, help="sampler seed")
     r.add_argument("-o", "--output", help="output EXR (default: SCENE name in the current dir)")
     r.add_argument("--variant", help="Mitsuba variant (default: llvm_ad_rgb)")
     r.add_argument("--debug", action="store_true", help="show Python tracebacks")
+    m = sub.add_parser("merge", help="merge independent renders of one scene")
+    m.add_argument("inputs", nargs="+", help="EXR files written by render")
+    m.add_argument("-o", "--output", required=True, help="merged EXR")
+    m.add_argument("--debug", action="store_true", help="show Python tracebacks")
     ls = sub.add_parser("list", help="list plugins and their parameters")
     ls.add_argument("--debug", action="store_true", help=argparse.SUPPRESS)
     return p
@@ -51,6 +68,18 @@ def _int_arg(flag, minimum):
         if v < minimum:
             word = "a positive integer" if minimum == 1 else f"an integer >= {minimum}"
             raise argparse.ArgumentTypeError(f"{flag} = {v} must be {word}")
+        return v
+    return conv
+
+
+def _seconds_arg(flag):
+    def conv(s):
+        try:
+            v = float(s)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{flag} = {s!r} is not a number of seconds") from None
+        if not v > 0 or v != v or v == float("inf"):
+            raise argparse.ArgumentTypeError(f"{flag} = {s} must be a positive number of seconds")
         return v
     return conv
 
@@ -100,30 +129,119 @@ def cmd_render(args) -> int:
         scene = mi.load_file(str(scene_path), **defines)
     except Exception as e:  # Mitsuba reports parse and plugin errors as RuntimeError
         raise UserError(f"{scene_path}: {_clean(e)}") from None
-    t0 = time.perf_counter()
-    try:
-        image = mi.render(scene, spp=args.spp or 0, seed=args.seed)
-        image = image.numpy() if hasattr(image, "numpy") else image
-    except Exception as e:
-        raise UserError(f"rendering {scene_path} failed: {_clean(e)}") from None
-    seconds = time.perf_counter() - t0
-    import numpy as np
+    import hashlib
 
-    from .imageio import write_exr, write_png
-    sensor = scene.sensors()[0]
-    spp = args.spp or sensor.sampler().sample_count()
-    bad = int(np.count_nonzero(~np.isfinite(image)))
+    from . import progressive
+    meta = {"scene": str(scene_path.resolve()),
+            "scene_sha1": hashlib.sha1(scene_path.read_bytes()).hexdigest(),
+            "integrator": " ".join(str(scene.integrator()).split()),
+            "variant": mi.variant(), "defines": " ".join(f"{k}={v}" for k, v in
+                                                         sorted(defines.items()))}
+    acc, stopped = _run(scene, args, out, meta)
+    if acc is None:
+        print(f"error: stopped before the first pass finished; nothing written", file=sys.stderr)
+        return 130
+    _write(out, acc, meta)
+    rate = acc.spp * acc.s.shape[0] * acc.s.shape[1] / max(acc.seconds, 1e-9)
+    print(f"wrote {out} and {out.with_suffix('.png')} ({acc.s.shape[1]}x{acc.s.shape[0]}, "
+          f"{acc.spp} spp in {acc.passes} passes, {acc.seconds:.2f} s, "
+          f"{rate / 1e6:.2f} M samples/s, {mi.variant()})")
+    if stopped:
+        print(f"stopped by {stopped}: the output holds the {acc.spp} spp finished so far",
+              file=sys.stderr)
+        return 130 if stopped == "SIGINT" else 143
+    return 0
+
+
+def _write(out, acc, meta):
+    from . import progressive
+    from .imageio import write_png
+    bad = int(np.count_nonzero(~np.isfinite(acc.s)))
     if bad:
         print(f"warning: {bad} non-finite pixel values (NaN/Inf) in the image", file=sys.stderr)
-    meta = {"scene": str(scene_path), "integrator": str(scene.integrator()).replace("\n", " "),
-            "spp": spp, "seed": args.seed, "variant": mi.variant(), "defines": defines}
     try:
-        write_exr(out, image, meta)
-        png = write_png(out.with_suffix(".png"), image)
+        progressive.write(out, acc, meta)
+        write_png(out.with_suffix(".png"), acc.mean())
     except OSError as e:
         raise UserError(f"cannot write {out}: {e.strerror or e}") from None
-    print(f"wrote {out} and {png} ({image.shape[1]}x{image.shape[0]}, {spp} spp, "
-          f"{seconds:.2f} s, {mi.variant()})")
+
+
+def _run(scene, args, out, meta):
+    """Progressive render with a progress bar, signal handling and checkpoints.
+    Returns (accumulator or None, name of the stopping signal or None)."""
+    import signal
+
+    from . import progressive
+    stop = progressive.Stop()
+    state = {"acc": None, "last_ckpt": time.monotonic(), "signal": None}
+
+    def handler(signum, frame):
+        name = signal.Signals(signum).name
+        if state["signal"] is not None:      # second signal: abandon the pass in flight
+            raise KeyboardInterrupt
+        state["signal"] = name
+        stop.set(name)
+        print(f"\n{name}: finishing the pass in flight, then writing {out} "
+              "(send again to abandon the pass)", file=sys.stderr)
+
+    old = {sig: signal.signal(sig, handler) for sig in (signal.SIGINT, signal.SIGTERM)}
+    bar = _progress_bar(args)
+
+    def on_pass(acc):
+        state["acc"] = acc
+        if bar is not None:
+            w, h = acc.s.shape[1], acc.s.shape[0]
+            bar.set_postfix_str(f"{acc.spp} spp, {acc.spp * w * h / max(acc.seconds, 1e-9) / 1e6:.2f} M samples/s")
+            bar.update((acc.spp if args.time is None else min(acc.seconds, args.time)) - bar.n)
+        if args.checkpoint and time.monotonic() - state["last_ckpt"] >= args.checkpoint:
+            _write(out, acc, meta)
+            state["last_ckpt"] = time.monotonic()
+
+    try:
+        try:
+            acc = progressive.render(scene, spp=args.spp, time_budget=args.time, seed=args.seed,
+                                     stop=stop, on_pass=on_pass)
+        except KeyboardInterrupt:
+            acc = state["acc"]
+            state["signal"] = state["signal"] or "SIGINT"
+        except Exception as e:
+            raise UserError(f"rendering failed: {_clean(e)}") from None
+    finally:
+        if bar is not None:
+            bar.close()
+        for sig, h in old.items():
+            signal.signal(sig, h)
+    return acc, state["signal"]
+
+
+def _progress_bar(args):
+    if args.quiet or not sys.stderr.isatty():
+        return None
+    from tqdm import tqdm
+    if args.time is not None:
+        return tqdm(total=args.time, unit="s", bar_format="{l_bar}{bar}| {n:.1f}/{total:.0f} s "
+                    "[{elapsed}<{remaining}{postfix}]", file=sys.stderr)
+    return tqdm(total=args.spp, unit="spp", file=sys.stderr)
+
+
+def cmd_merge(args) -> int:
+    import integrators  # noqa: F401
+
+    from . import progressive
+    paths = [Path(p) for p in args.inputs]
+    for p in paths:
+        if not p.is_file():
+            raise UserError(f"input not found: {p}")
+    out = Path(args.output)
+    if out.suffix.lower() != ".exr":
+        raise UserError(f"output {out}: the file name must end in .exr")
+    try:
+        acc, meta = progressive.merge([str(p) for p in paths])
+    except (ValueError, RuntimeError) as e:
+        raise UserError(_clean(e)) from None
+    _write(out, acc, meta)
+    print(f"wrote {out} and {out.with_suffix('.png')}: {len(paths)} runs, {acc.spp} spp, "
+          f"seeds {acc.seed_first}-{acc.seed_last}")
     return 0
 
 
@@ -141,7 +259,7 @@ def main(argv=None) -> int:
     debug = "--debug" in argv
     try:
         args = _parser().parse_args(argv)
-        return {"render": cmd_render, "list": cmd_list}[args.command](args)
+        return {"render": cmd_render, "list": cmd_list, "merge": cmd_merge}[args.command](args)
     except UserError as e:
         if debug:
             raise

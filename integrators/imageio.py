@@ -58,5 +58,31 @@ def write_png(path, image) -> Path:
     return Path(path)
 
 
+def write_layers(path, layers: dict, metadata: dict | None = None) -> Path:
+    """EXR with named RGB layers ({"": rgb, "variance": rgb}) and string metadata."""
+    names, arrays = [], []
+    for layer, img in layers.items():
+        prefix = f"{layer}." if layer else ""
+        names += [prefix + c for c in "RGB"]
+        arrays.append(np.asarray(img, dtype=np.float32)[..., :3])
+    bmp = mi.Bitmap(np.concatenate(arrays, axis=2), mi.Bitmap.PixelFormat.MultiChannel,
+                    channel_names=names)
+    meta = bmp.metadata()
+    for k, v in (metadata or {}).items():
+        meta[str(k)] = str(v)
+    _atomic(Path(path), lambda tmp: bmp.write(tmp, mi.Bitmap.FileFormat.OpenEXR))
+    return Path(path)
+
+
+def read_layers(path) -> tuple[dict, dict]:
+    """({layer: HxWx3 array} with "" for the RGB layer, {metadata key: string})."""
+    bmp = mi.Bitmap(str(path))
+    layers = {("" if name == "<root>" else name): np.array(b, dtype=np.float32)
+              for name, b in bmp.split()}
+    meta = bmp.metadata()
+    return layers, {k: meta[k] for k in meta.keys()}
+
+
 def read_exr(path) -> np.ndarray:
-    return np.array(mi.Bitmap(str(path)), dtype=np.float32)
+    """The RGB layer of an EXR."""
+    return read_layers(path)[0][""]
