@@ -1,0 +1,132 @@
+"""Mutation harness: plant known biases in a temporary copy of the package and check that the
+test suite catches (kills) every one.
+
+    python tests/mutation.py [--only NAME ...] [--list]
+
+Each mutant is a textual patch of one source file.  For each, the package and tests are copied
+to a temporary directory, the patch is applied (it must match exactly once, so a refactor that
+moves the code makes the harness fail loudly instead of testing nothing), and pytest runs
+against the copy: first the test files that target the mutated code, then, if they pass, the
+whole default suite; any failure kills the mutant.  The last line is ``killed K of M``; the
+exit status is 0 only when every mutant was killed.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+# (name, file, original text, mutated text, test files that target it)
+MUTANTS = [
+    ("rr-no-compensation", "integrators/base.py",
+     "beta = dr.select(rr_active, beta * dr.rcp(dr.select(q > 0, q, 1.0)), beta)",
+     "beta = dr.select(rr_active, beta, beta)", ["test_bsdf_path.py", "test_nee_path.py"]),
+    ("rr-survival-off", "integrators/base.py",
+     "return beta, active & (lnot(rr_active) | (u < q))",
+     "return beta, active & (lnot(rr_active) | (u < 0.9 * q))", ["test_nee_path.py"]),
+    ("mis-weights-sum-1.05", "integrators/mis.py",
+     "return [x * inv_total for x in s]",
+     "return [x * inv_total * 1.05 for x in s]", ["test_mis.py", "test_direct_mis.py"]),
+    ("mis-densities-without-sample-counts", "integrators/nee.py",
+     "heur.weight(0, [n_l * ds.pdf, n_b * bsdf_pdf])",
+     "heur.weight(0, [ds.pdf, bsdf_pdf])", ["test_direct_mis.py"]),
+    ("light-pdf-without-selection", "integrators/light_selection.py",
+     "return dr.select(active & (sel > 0), pdf * sel, 0.0)",
+     "return dr.select(active & (sel > 0), pdf, 0.0)",
+     ["test_direct_mis.py", "test_light_selection_variance.py"]),
+    ("light-samples-not-divided-by-count", "integrators/nee.py",
+     "    return L / n_l\n", "    return L\n", ["test_direct_mis.py"]),
+    ("phong-missing-cosine", "integrators/phong.py",
+     "return dr.select(active, value * cos_o, 0.0)",
+     "return dr.select(active, value, 0.0)", ["test_phong.py"]),
+    ("phong-normalisation-e+1", "integrators/phong.py",
+     "value += self.ks.eval(si, active) * ((self.exponent + 2.0) * dr.inv_two_pi * lobe)",
+     "value += self.ks.eval(si, active) * ((self.exponent + 1.0) * dr.inv_two_pi * lobe)",
+     ["test_phong.py"]),
+    ("phong-sampling-exponent", "integrators/phong.py",
+     "cos_a = dr.power(sample2.x, 1.0 / (self.exponent + 1.0))",
+     "cos_a = dr.power(sample2.x, 1.0 / (self.exponent + 2.0))", ["test_phong.py"]),
+    ("split-weight-1/(k-1)", "integrators/nee_path.py",
+     "    return 1.0 / k\n", "    return 1.0 / max(k - 1, 1)\n", ["test_nee_path.py"]),
+    ("cosine-pdf-off", "integrators/bsdf_path.py",
+     "pdf = wo.z * dr.inv_pi", "pdf = wo.z * dr.inv_two_pi", ["test_bsdf_path.py"]),
+    ("mis3-light-without-p3", "integrators/mis3.py",
+     "L += dr.select(act_l, beta * f * em_w * w / dr.select(p3 > 0, p3, 1.0), 0.0)",
+     "L += dr.select(act_l, beta * f * em_w * w, 0.0)", ["test_mis3.py"]),
+    ("adaptive-pmf-not-normalised", "integrators/light_selection.py",
+     "return (1.0 - DEFENSIVE) * adaptive + DEFENSIVE * p_power",
+     "return adaptive + DEFENSIVE * p_power", ["test_light_selection_variance.py"]),
+]
+
+
+def run_pytest(root: Path, files, env) -> tuple[str, str]:
+    """'pass', 'fail' (a test failed: the mutant is caught) or 'error' (crash, collection or
+    fixture error: that is no evidence the suite sees the bias, so it does not count)."""
+    cmd = [sys.executable, "-m", "pytest", "-x", "-q", "-p", "no:cacheprovider", *files]
+    r = subprocess.run(cmd, cwd=root / "tests", env=env, capture_output=True, text=True)
+    tail = [ln for ln in r.stdout.strip().splitlines() if ln.strip()]
+    line = tail[-1] if tail else r.stderr.strip()[-200:]
+    if r.returncode == 0:
+        return "pass", line
+    if r.returncode == 1 and "failed" in line and "error" not in line:
+        return "fail", line
+    return "error", line
+
+
+def run_mutant(name, path, old, new, targets) -> tuple[bool, str]:
+    with tempfile.TemporaryDirectory(prefix="mutant-") as tmp:
+        root = Path(tmp)
+        for part in ("integrators", "tests", "scenes", "benchmarks"):
+            shutil.copytree(ROOT / part, root / part,
+                            ignore=shutil.ignore_patterns("__pycache__", "results"))
+        src = root / path
+        text = src.read_text()
+        if text.count(old) != 1:
+            raise SystemExit(f"mutant {name}: the original text occurs {text.count(old)} times "
+                             f"in {path}; update tests/mutation.py")
+        src.write_text(text.replace(old, new))
+        env = dict(os.environ, PYTHONPATH=str(root), PYTHONDONTWRITEBYTECODE="1")
+        outcome, line = run_pytest(root, targets, env)
+        if outcome == "pass":
+            outcome, line = run_pytest(root, [], env)
+        return outcome, line
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--only", nargs="*", help="run only these mutants")
+    ap.add_argument("--list", action="store_true", help="list the mutants")
+    ap.add_argument("--control", action="store_true",
+                    help="first run the suite on an unmutated copy (it must pass)")
+    a = ap.parse_args(argv)
+    mutants = [m for m in MUTANTS if not a.only or m[0] in a.only]
+    if a.list:
+        for m in mutants:
+            print(f"{m[0]:40s} {m[1]}")
+        return 0
+    if a.control:
+        outcome, line = run_mutant("control", "integrators/mis.py", "HEURISTICS = (",
+                                   "HEURISTICS = (", [])
+        print(f"control (unmutated copy): {outcome} ({line})", flush=True)
+        if outcome != "pass":
+            return 1
+    killed = 0
+    for name, path, old, new, targets in mutants:
+        t0 = time.perf_counter()
+        outcome, line = run_mutant(name, path, old, new, targets)
+        killed += outcome == "fail"
+        word = {"fail": "killed  ", "pass": "SURVIVED", "error": "ERROR   "}[outcome]
+        print(f"{word} {name:40s} {time.perf_counter() - t0:6.1f} s  ({line})", flush=True)
+    print(f"killed {killed} of {len(mutants)}")
+    return 0 if killed == len(mutants) else 1
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
