@@ -197,3 +197,34 @@ def image_test(a: np.ndarray, b: np.ndarray, block: int = 4,
     p_comb = float(-np.expm1(p.size * np.log1p(-min(float(p[i]), 1 - 1e-16))))
     rel = float(abs(a.mean() - b.mean()) / max(abs(b.mean()), 1e-12))
     return ImageTest(p_comb, tuple(int(x) for x in i), rel, alpha)
+
+
+# ---------------------------------------------------------------------------------------------
+# per-sample values (variance studies)
+def sample_values(scene, integrator, target, origin, n: int = 1 << 20, seed: int = 0):
+    """(n, channels) array of independent single-sample estimates of the radiance leaving
+    ``target`` towards ``origin``: ``integrator.sample`` called directly on n copies of the ray,
+    with an independent sampler (works for ours and Mitsuba's built-in integrators)."""
+    target, origin = np.asarray(target, float), np.asarray(origin, float)
+    d = target - origin
+    d = d / np.linalg.norm(d)
+    sampler = mi.load_dict({"type": "independent"})
+    sampler.seed(seed, n)
+    ray = mi.Ray3f(mi.Point3f(*[dr.full(mi.Float, float(v), n) for v in origin]),
+                   mi.Vector3f(*[float(v) for v in d]))
+    spec, _, _ = integrator.sample(scene, sampler, ray, None, mi.Bool(True))
+    return np.array(mi.unpolarized_spectrum(spec), dtype=np.float64).T
+
+
+def variance_upper_test(v_a: np.ndarray, v_b: np.ndarray, slack: float, z: float = 4.0):
+    """One-sided check of H0 "Var[a] <= Var[b] + slack" from per-sample values (first channel):
+    the difference of the two sample variances, with its standard error from 64 groups, must not
+    exceed the slack by more than ``z`` standard errors.  Returns (passed, details)."""
+    a, b = v_a[:, 0], v_b[:, 0]
+    ga = np.array_split(a, 64)
+    gb = np.array_split(b, 64)
+    diffs = np.array([x.var() - y.var() for x, y in zip(ga, gb)])
+    diff = a.var() - b.var()
+    se = diffs.std(ddof=1) / math.sqrt(len(diffs))
+    stat = (diff - slack) / max(se, 1e-300)
+    return stat <= z, dict(var_a=a.var(), var_b=b.var(), slack=slack, z=stat)
