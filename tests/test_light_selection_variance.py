@@ -117,7 +117,8 @@ def test_path_integrators_unbiased_with_adaptive(plane, nee):
 
 
 def test_adaptive_pmf_chi2(plane):
-    """The drawn light index at a fixed shading point follows pmf_at (chi-square, alpha 1e-3)."""
+    """The drawn light index at a fixed shading point follows pmf_at (chi-square, alpha 1e-3:
+    0.1 % of the suite's false-failure budget)."""
     scene, _ = plane
     sel = AdaptiveLightSelection(scene)
     n = 1 << 20

@@ -50,7 +50,7 @@ from scipy import integrate, stats
 
 import integrators
 
-ALPHA = 0.01                          # family-wise significance level of every statistical family
+ALPHA = 0.001                         # family-wise level of each of the 4 statistical families (suite budget: README)
 SEED_BASE = 0x5EED
 
 # ---------------------------------------------------------------------------------------------
