@@ -111,17 +111,21 @@ def batch_means(scene, integrator, batches: int = 32, spp: int = 8192, seed0: in
     return np.array(out)
 
 
+class _Verdict:
+    """A test result: passed when its p-value is at least its significance level."""
+
+    @property
+    def passed(self) -> bool:
+        return self.p_value >= self.alpha
+
+
 @dataclass
-class MeanTest:
+class MeanTest(_Verdict):
     mean: np.ndarray
     expected: np.ndarray
     rel_se: float          # largest relative standard error over channels
     p_value: float         # Sidak-combined over channels
     alpha: float
-
-    @property
-    def passed(self) -> bool:
-        return self.p_value >= self.alpha
 
     def __str__(self):
         return (f"mean {np.array2string(self.mean, precision=5)} vs expected "
@@ -165,15 +169,11 @@ def batch_images(scene, integrator, batches: int = 16, spp: int = 256, seed0: in
 
 
 @dataclass
-class ImageTest:
+class ImageTest(_Verdict):
     p_value: float          # Sidak-combined over all blocks and channels
     worst_block: tuple      # (row, col, channel) of the smallest p
     rel_diff: float         # relative difference of the image means
     alpha: float
-
-    @property
-    def passed(self) -> bool:
-        return self.p_value >= self.alpha
 
     def __str__(self):
         return (f"p = {self.p_value:.3g} (alpha {self.alpha:g}), worst block {self.worst_block}, "
