@@ -136,30 +136,21 @@ PATH_METHODS = (
     _m("bsdf_path", "path", {"type": "bsdf_path", "max_depth": PATH_DEPTH},
        "our `bsdf_path`, BSDF sampling only (no light sampling)"),
 )
+HEURISTIC_NOTES = {
+    "balance": "balance heuristic",
+    "power": "power heuristic (beta 2)",
+    "cutoff": "cutoff heuristic (alpha 0.1)",
+    "maximum": "maximum heuristic",
+    "average": "average (1 / number of techniques with non-zero pdf)",
+    "partition": "partition (light hits count from light sampling only)",
+}
 DIRECT_METHODS = {
     "direct": _m("direct", "direct", {"type": "direct"},
                  "Mitsuba's built-in `direct` (1 emitter + 1 BSDF sample, power heuristic): the "
                  "baseline of the direct-light group"),
-    "direct_mis_balance": _m("direct_mis_balance", "direct",
-                             {"type": "direct_mis", "heuristic": "balance"},
-                             "our `direct_mis`, 1 light + 1 BSDF sample, balance heuristic"),
-    "direct_mis_power": _m("direct_mis_power", "direct",
-                           {"type": "direct_mis", "heuristic": "power"},
-                           "our `direct_mis`, 1 + 1 samples, power heuristic (beta 2)"),
-    "direct_mis_cutoff": _m("direct_mis_cutoff", "direct",
-                            {"type": "direct_mis", "heuristic": "cutoff"},
-                            "our `direct_mis`, 1 + 1 samples, cutoff heuristic (alpha 0.1)"),
-    "direct_mis_maximum": _m("direct_mis_maximum", "direct",
-                             {"type": "direct_mis", "heuristic": "maximum"},
-                             "our `direct_mis`, 1 + 1 samples, maximum heuristic"),
-    "direct_mis_average": _m("direct_mis_average", "direct",
-                             {"type": "direct_mis", "heuristic": "average"},
-                             "our `direct_mis`, 1 + 1 samples, average (1 / number of techniques "
-                             "with non-zero pdf)"),
-    "direct_mis_partition": _m("direct_mis_partition", "direct",
-                               {"type": "direct_mis", "heuristic": "partition"},
-                               "our `direct_mis`, 1 + 1 samples, partition (light hits count "
-                               "from light sampling only)"),
+    **{f"direct_mis_{h}": _m(f"direct_mis_{h}", "direct", {"type": "direct_mis", "heuristic": h},
+                             f"our `direct_mis`, 1 light + 1 BSDF sample, {HEURISTIC_NOTES[h]}")
+       for h in HEURISTIC_NOTES},
     "light_only": _m("light_only", "direct",
                      {"type": "direct_mis", "light_samples": 1, "bsdf_samples": 0},
                      "our `direct_mis`, light sampling only (light_samples 1, bsdf_samples 0)"),
