@@ -1120,41 +1120,29 @@ def report(summary) -> str:
     L += ["## Headline: efficiency relative to Mitsuba `path` (max_depth 4)", ""]
     plabels = [m.label for m in PATH_METHODS if any(m.label in sc["methods"]
                                                      for sc in scenes.values())]
-    L += ["| scene | " + " | ".join(f"`{l}`" for l in plabels) + " |",
-          "|---|" + "---:|" * len(plabels)]
-    for name, sc in scenes.items():
-        g = sc["groups"].get("path")
-        if not g:
-            continue
-        e = g["efficiency_at_largest_budget"]
-        L.append(f"| {name} | " + " | ".join(
-            _f(e[l]["efficiency_vs_baseline"], ".2f") if l in e else "" for l in plabels) + " |")
-    for key, title in (("efficiency_vs_baseline_3_largest",
-                        "The same, geometric mean of the per-budget ratios over the three "
-                        "largest budgets (a check on the noise of single points):"),
-                       ("efficiency_without_emitter_pixels_vs_baseline",
-                        "The same at the largest budget, relMSE over the pixels that do not see "
-                        "an area light directly (see the notes):")):
-        L += ["", title, "", "| scene | " + " | ".join(f"`{l}`" for l in plabels) + " |",
-              "|---|" + "---:|" * len(plabels)]
+    def path_table(key):
+        """One row per scene: the path group's ``key`` at the largest budget, per method."""
+        rows = ["| scene | " + " | ".join(f"`{l}`" for l in plabels) + " |",
+                "|---|" + "---:|" * len(plabels)]
         for name, sc in scenes.items():
             g = sc["groups"].get("path")
             if not g:
                 continue
             e = g["efficiency_at_largest_budget"]
-            L.append(f"| {name} | " + " | ".join(
+            rows.append(f"| {name} | " + " | ".join(
                 _f(e[l].get(key), ".2f") if l in e else "" for l in plabels) + " |")
-    L += ["", "Samples per second relative to `path` at the largest budget:", "",
-          "| scene | " + " | ".join(f"`{l}`" for l in plabels) + " |",
-          "|---|" + "---:|" * len(plabels)]
-    for name, sc in scenes.items():
-        g = sc["groups"].get("path")
-        if not g:
-            continue
-        e = g["efficiency_at_largest_budget"]
-        L.append(f"| {name} | " + " | ".join(
-            _f(e[l]["samples_per_s_vs_baseline"], ".2f") if l in e else "" for l in plabels)
-            + " |")
+        return rows
+
+    L += path_table("efficiency_vs_baseline")
+    for key, title in (("efficiency_vs_baseline_3_largest",
+                        "The same, geometric mean of the per-budget ratios over the three "
+                        "largest budgets (a check on the noise of single points):"),
+                       ("efficiency_without_emitter_pixels_vs_baseline",
+                        "The same at the largest budget, relMSE over the pixels that do not see "
+                        "an area light directly (see the notes):"),
+                       ("samples_per_s_vs_baseline",
+                        "Samples per second relative to `path` at the largest budget:")):
+        L += ["", title, ""] + path_table(key)
     L.append("")
     dscenes = [n for n, sc in scenes.items() if "direct" in sc["groups"]]
     if dscenes:

@@ -13,7 +13,7 @@ from . import _llvm
 
 LLVM_PATH = _llvm.configure()
 
-import drjit as dr  # noqa: E402  (after the LLVM configuration)
+import drjit as dr  # noqa: E402,F401  (imported after the LLVM configuration, on purpose)
 import mitsuba as mi  # noqa: E402
 
 DEFAULT_VARIANT = "llvm_ad_rgb"

@@ -131,7 +131,6 @@ def cmd_render(args) -> int:
         raise UserError(f"{scene_path}: {_clean(e)}") from None
     import hashlib
 
-    from . import progressive
     meta = {"scene": str(scene_path.resolve()),
             "scene_sha1": hashlib.sha1(scene_path.read_bytes()).hexdigest(),
             "integrator": " ".join(str(scene.integrator()).split()),
@@ -139,7 +138,7 @@ def cmd_render(args) -> int:
                                                          sorted(defines.items()))}
     acc, stopped = _run(scene, args, out, meta)
     if acc is None:
-        print(f"error: stopped before the first pass finished; nothing written", file=sys.stderr)
+        print("error: stopped before the first pass finished; nothing written", file=sys.stderr)
         return 130
     _write(out, acc, meta)
     rate = acc.spp * acc.s.shape[0] * acc.s.shape[1] / max(acc.seconds, 1e-9)

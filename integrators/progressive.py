@@ -26,7 +26,6 @@ import time
 from dataclasses import dataclass, field
 from typing import Callable
 
-import drjit as dr
 import mitsuba as mi
 import numpy as np
 
