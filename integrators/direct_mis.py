@@ -59,13 +59,14 @@ class DirectMIS(IntegratorTemplate):
         if n_l == 1 and self.bsdf_samples == 1 and bsdf is not None:
             # one sample of each: evaluate the BSDF for the light sample and draw the BSDF
             # sample in one call (as Mitsuba's direct and path do)
-            ds, em_weight, act_l = nee.sample_light(scene, sel, sampler, si, active & smooth)
+            ds, em_weight, act_l, norm = nee.sample_light(scene, sel, sampler, si,
+                                                          active & smooth)
             s1, s2 = sampler.next_1d(active), sampler.next_2d(active)
             f_l, pdf_l, bs, weight = bsdf.eval_pdf_sample(ctx, si, si.to_local(ds.d), s1, s2,
                                                           active)
             w_l = nee.light_weight(self.heur, 1, 1, ds, pdf_l)
             L += dr.select(act_l, f_l * em_weight * w_l, 0.0)
-            L += self.bsdf_hit(scene, sel, si, bs, weight, n_l, active)
+            L += self.bsdf_hit(scene, sel, si, bs, weight, n_l, active, norm)
             return L, valid, []
         if n_l > 0:
             L += nee.light_estimate(scene, sel, self.heur, sampler, ctx, si, bsdf, n_l,
@@ -74,13 +75,13 @@ class DirectMIS(IntegratorTemplate):
             L += self.bsdf_estimate(scene, sel, sampler, ctx, si, bsdf, n_l, active)
         return L, valid, []
 
-    def bsdf_hit(self, scene, sel, si, bs, weight, n_l, active):
+    def bsdf_hit(self, scene, sel, si, bs, weight, n_l, active, norm=None):
         """Emission found by one BSDF sample, MIS-weighted (not divided by N_b)."""
         act = active & dr.any(weight != 0)
         si_l = scene.ray_intersect(si.spawn_ray(si.to_world(bs.wo)), act)
         delta = mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta)
         w = nee.emission_weight(self.heur, sel, n_l, self.bsdf_samples, si, si_l, bs.pdf,
-                                delta, act)
+                                delta, act, norm)
         return dr.select(act, weight * emitted(scene, si_l, act) * w, 0.0)
 
     @dr.syntax

@@ -164,11 +164,16 @@ class LightSelection:
         return self.emitters[int(idx)]
 
     def choose(self, si, sample1, active=True):
-        """Pick the emitter of a light sample at ``si``: (EmitterPtr, p(j | si))."""
-        return self.sample(sample1, active)
+        """Pick the emitter of a light sample at ``si``: (EmitterPtr, p(j | si), norm).
 
-    def pmf_at(self, si, emitter, active=True):
-        """p(j | si) of ``emitter`` (the same for every point unless adaptive)."""
+        ``norm`` is whatever :meth:`pmf_at` needs to evaluate p(. | si) again at the same point
+        without redoing the work (the adaptive pmf's normaliser); None for a fixed pmf."""
+        emitter, pmf = self.sample(sample1, active)
+        return emitter, pmf, None
+
+    def pmf_at(self, si, emitter, active=True, norm=None):
+        """p(j | si) of ``emitter`` (the same for every point unless adaptive); ``norm``: the
+        value :meth:`choose` returned at this ``si``, if any."""
         return self.pmf(emitter, active)
 
     def sample(self, sample1, active=True):
@@ -183,32 +188,34 @@ class LightSelection:
     def sample_direction(self, si, sample1, sample2, active=True):
         """Light sample in solid-angle form, selection included.
 
-        Returns (ds, weight) with ``ds.pdf = p(j) p_j(omega)`` (for a delta emitter
-        ``ds.delta`` is set and ``ds.pdf`` is meaningless for MIS) and
+        Returns (ds, weight, norm) with ``ds.pdf = p(j) p_j(omega)`` (for a delta emitter
+        ``ds.delta`` is set and ``ds.pdf`` is meaningless for MIS),
         ``weight = L_e G / (p(j) p_j)`` as Mitsuba's ``Emitter.sample_direction`` defines it
-        (no visibility test)."""
+        (no visibility test), and ``norm`` from :meth:`choose`, to pass to
+        :meth:`pdf_direction` from the same ``si``."""
         if self.count == 0:
-            return dr.zeros(mi.DirectionSample3f), mi.Spectrum(0.0)
-        emitter, sel = self.choose(si, sample1, active)
+            return dr.zeros(mi.DirectionSample3f), mi.Spectrum(0.0), None
+        emitter, sel, norm = self.choose(si, sample1, active)
         active = active & (sel > 0)
         if not is_jit() and not active:
-            return dr.zeros(mi.DirectionSample3f), mi.Spectrum(0.0)
+            return dr.zeros(mi.DirectionSample3f), mi.Spectrum(0.0), norm
         ds, weight = emitter.sample_direction(si, sample2, active)
         ds.emitter = emitter
         ds.pdf = ds.pdf * sel
         weight = dr.select(active & (sel > 0), weight / dr.select(sel > 0, sel, 1.0), 0.0)
-        return ds, weight
+        return ds, weight, norm
 
-    def pdf_direction(self, si_from, si_hit, active=True):
+    def pdf_direction(self, si_from, si_hit, active=True, norm=None):
         """Solid-angle density with which light sampling from ``si_from`` produces the
-        direction to the emitter surface (or environment) found at ``si_hit``."""
+        direction to the emitter surface (or environment) found at ``si_hit``; ``norm``: what
+        :meth:`sample_direction` returned at ``si_from``, if it was called there."""
         if self.count == 0:
             return mi.Float(0.0)
         emitter = si_hit.emitter(self.scene)
         if not is_jit() and (emitter is None or not active):
             return 0.0
         ds = mi.DirectionSample3f(self.scene, si_hit, si_from)
-        sel = self.pmf_at(si_from, emitter, active)
+        sel = self.pmf_at(si_from, emitter, active, norm)
         pdf = emitter.pdf_direction(si_from, ds, active & (sel > 0))
         return dr.select(active & (sel > 0), pdf * sel, 0.0)
 
@@ -229,6 +236,7 @@ class SelectionCache:
 # ---------------------------------------------------------------------------------------------
 # adaptive selection: per shading point, proportional to an estimate of each light's irradiance
 DEFENSIVE = 0.05
+ONE_MINUS_EPS = 1.0 - 2.0 ** -24
 
 
 def _light_geometry(scene, emitters, power):
@@ -283,11 +291,20 @@ class AdaptiveLightSelection(LightSelection):
     Phi / (4 pi r_scene^2).  The defensive term keeps p(j | x) > 0 for every light with power,
     so the estimator stays unbiased even where the bound is loose (shading normals).
 
-    Cost: every shading point evaluates E_j for all N lights, once to sample and once for the
-    pdf of a BSDF-sampled hit: O(N) per vertex (a symbolic loop of gathers, so the kernel does
-    not grow with N).  That is fine up to about 64 lights; a light tree (Conty & Kulla 2018,
-    pbrt-v4's BVHLightSampler) would traverse a hierarchy of such bounds instead, O(log N) per
-    vertex, at the price of a pmf that is exact only per tree node."""
+    Cost: O(N) per vertex, N + 1 evaluations of E: one pass over the lights sums the E_k and
+    draws j ~ E_j / sum_k E_k by weighted reservoir sampling driven by the one uniform number
+    (:meth:`_scan`); the sum is returned with the choice (``norm``), so the pdf of a
+    BSDF-sampled hit from the same vertex costs one more E (a pdf without ``norm`` costs a
+    pass).  Up to ``UNROLL`` (64) lights the pass is unrolled when the kernel is traced, each
+    light's parameters constants in it (no gathers, and the terms a light does not need, such
+    as the orientation of a sphere, drop out); beyond that it is a symbolic loop of gathers
+    from N-entry tables, so the kernel stops growing with N.  Either way it reads every light
+    whatever the lane's mask, so the ``norm`` of a masked-off lane is valid too.  O(N) is fine
+    up to about 64 lights; a light tree (Conty & Kulla 2018, pbrt-v4's BVHLightSampler) would
+    traverse a hierarchy of such bounds instead, O(log N) per vertex, at the price of a pmf
+    that is exact only per tree node."""
+
+    UNROLL = 64   # lights up to which the pass is unrolled (see _first)
 
     def __init__(self, scene):
         super().__init__(scene, "power")
@@ -301,6 +318,7 @@ class AdaptiveLightSelection(LightSelection):
             nx=normal[:, 0], ny=normal[:, 1], nz=normal[:, 2], scale=scale)
         if is_jit():
             self.t = {k: mi.Float(v.astype(np.float32)) for k, v in self.tables.items()}
+            self.power_pmf = mi.Float(self.pmf_np.astype(np.float32))
             ids = np.array(dr.reinterpret_array(mi.UInt32, self.emitters_dr), dtype=np.int64)
             idx = np.zeros(int(ids.max()) + 1, dtype=np.uint32)
             idx[ids] = np.arange(self.count, dtype=np.uint32)
@@ -308,12 +326,19 @@ class AdaptiveLightSelection(LightSelection):
         else:
             self.index_by_ptr = {e.ptr: j for j, e in enumerate(self.emitters)}
 
-    def _estimate(self, si, j, active):
-        """E_j(x): the bound on light j's irradiance at ``si`` (j: index array or int)."""
-        if is_jit():
-            g = {k: dr.gather(mi.Float, v, j, active) for k, v in self.t.items()}
-        else:
-            g = {k: float(v[j]) for k, v in self.tables.items()}
+    def _row(self, j):
+        """Light j's table entries: Python floats for an int j (constants in the kernel),
+        gathered values for an index array."""
+        if isinstance(j, int):
+            return {k: float(v[j]) for k, v in self.tables.items()}
+        return {k: dr.gather(mi.Float, v, j) for k, v in self.t.items()}
+
+    def _estimate(self, si, j):
+        """E_j(x): the bound on light j's irradiance at ``si`` (j: int or index array < N)."""
+        g = self._row(j)
+        const = isinstance(j, int)
+        if const and g["kind"] > 0.5:   # infinite emitter: the same everywhere
+            return mi.Float(g["scale"])
         c = mi.Point3f(g["cx"], g["cy"], g["cz"])
         d = c - si.p
         dist2 = dr.squared_norm(d)
@@ -326,38 +351,56 @@ class AdaptiveLightSelection(LightSelection):
             sin_t = dr.safe_sqrt(1.0 - cos_t * cos_t)
             return dr.select(cos_t > cos_b, 1.0, cos_t * cos_b + sin_t * sin_b)
 
-        cos_p = widened(dr.dot(si.n, wdir))
-        cos_p = dr.maximum(cos_p, 0.0)
+        cos_p = dr.maximum(widened(dr.dot(si.n, wdir)), 0.0)
         n_l = mi.Vector3f(g["nx"], g["ny"], g["nz"])
-        flat = dr.squared_norm(n_l) > 0
-        cos_l = dr.select(flat, dr.maximum(widened(dr.dot(n_l, -wdir)), 0.0), 1.0)
+        if const and not (g["nx"] or g["ny"] or g["nz"]):
+            cos_l = 1.0                 # not flat: no orientation factor
+        else:
+            flat = dr.squared_norm(n_l) > 0
+            cos_l = dr.select(flat, dr.maximum(widened(dr.dot(n_l, -wdir)), 0.0), 1.0)
         finite = g["scale"] * cos_p * cos_l / dr.maximum(dist2, g["radius"] * g["radius"])
-        return dr.select(g["kind"] > 0.5, g["scale"], finite)
+        return finite if const else dr.select(g["kind"] > 0.5, g["scale"], finite)
+
+    def _first(self):
+        """Loop counter over the lights: a Python int (the loop is unrolled, every light's
+        parameters are constants in the kernel) up to UNROLL lights and in the scalar
+        variant, else a symbolic loop of gathers (the kernel does not grow with N)."""
+        return 0 if (self.count <= self.UNROLL or not is_jit()) else mi.UInt32(0)
 
     @dr.syntax
-    def _total(self, si, active):
+    def _total(self, si):
         total = mi.Float(0.0)
-        j = mi.UInt32(0)
+        j = self._first()
         while dr.hint(j < self.count, label="adaptive light selection: total"):
-            total += self._estimate(si, j, active)
+            total += self._estimate(si, j)
             j += 1
         return total
 
     @dr.syntax
-    def _pick(self, si, total, u, active):
-        """Index j with sum_{k<j} E_k <= u total < sum_{k<=j} E_k."""
-        target = u * total
-        acc = mi.Float(0.0)
-        idx = mi.UInt32(self.count - 1)
-        found = mi.Bool(False)
-        j = mi.UInt32(0)
-        while dr.hint(j < self.count, label="adaptive light selection: pick"):
-            acc += self._estimate(si, j, active)
-            hit = (acc > target) & (found == False)  # noqa: E712
-            idx = dr.select(hit, j, idx)
-            found |= hit
+    def _scan(self, si, u, watch):
+        """One pass over the lights: (j, E_j, E_watch, sum_k E_k) with j drawn with
+        probability E_j / sum_k E_k by a weighted reservoir: light k replaces the pick with
+        probability E_k / sum_{i<=k} E_i, decided by ``u``, which is rescaled to a fresh
+        uniform number after each decision.  ``watch``: an index whose E is wanted too."""
+        total = mi.Float(0.0)
+        idx = mi.UInt32(0)
+        e_idx = mi.Float(0.0)
+        e_watch = mi.Float(0.0)
+        u = mi.Float(u)
+        j = self._first()
+        while dr.hint(j < self.count, label="adaptive light selection"):
+            e = self._estimate(si, j)
+            total += e
+            p = dr.select(total > 0, e / dr.select(total > 0, total, 1.0), 0.0)
+            take = u < p
+            idx = dr.select(take, j, idx)
+            e_idx = dr.select(take, e, e_idx)
+            u = dr.select(take, u / dr.select(take, p, 1.0),
+                          (u - p) / dr.select(take, 1.0, 1.0 - p))
+            u = dr.minimum(u, ONE_MINUS_EPS)
+            e_watch = dr.select(watch == j, e, e_watch)
             j += 1
-        return idx
+        return idx, e_idx, e_watch, total
 
     def _mix(self, e_j, total, p_power):
         adaptive = dr.select(total > 0, e_j / dr.select(total > 0, total, 1.0), p_power)
@@ -369,25 +412,31 @@ class AdaptiveLightSelection(LightSelection):
                              dr.reinterpret_array(mi.UInt32, emitter), active)
         return self.index_by_ptr.get(emitter.ptr, 0)
 
-    def pmf_at(self, si, emitter, active=True):
-        """p(j | x) of ``emitter`` at the shading point ``si``."""
-        j = self._index(emitter, active)
-        total = self._total(si, active)
-        return self._mix(self._estimate(si, j, active), total, self.pmf(emitter, active))
+    def pmf_at(self, si, emitter, active=True, norm=None):
+        """p(j | x) of ``emitter`` at the shading point ``si``; ``norm``: the sum of the
+        bounds at ``si`` that :meth:`choose` returned there (computed here if None)."""
+        total = self._total(si) if norm is None else norm
+        e_j = self._estimate(si, self._index(emitter, active))
+        return self._mix(e_j, total, self.pmf(emitter, active))
 
     def sample(self, sample1, active=True):
         raise NotImplementedError("adaptive selection needs the shading point: use choose")
 
     def choose(self, si, sample1, active=True):
-        total = self._total(si, active)
-        use_power = (sample1 < DEFENSIVE) | (total <= 0)
-        u = dr.select(sample1 < DEFENSIVE, sample1 / DEFENSIVE,
-                      (sample1 - DEFENSIVE) / (1.0 - DEFENSIVE))
-        idx_p, _ = self.distr.sample_pmf(dr.minimum(u, 1.0 - 1e-7), active)
-        idx = dr.select(use_power, idx_p, self._pick(si, total, u, active))
-        emitter = self._emitter(idx, active)
-        sel = self._mix(self._estimate(si, idx, active), total, self.pmf(emitter, active))
-        return emitter, sel
+        # with probability DEFENSIVE a draw from the power pmf, else from the bounds
+        use_power = sample1 < DEFENSIVE
+        u = dr.select(use_power, sample1 / DEFENSIVE, (sample1 - DEFENSIVE) / (1.0 - DEFENSIVE))
+        u = dr.minimum(u, ONE_MINUS_EPS)
+        idx_p, p_power = self.distr.sample_pmf(u, active)
+        idx_a, e_a, e_p, total = self._scan(si, u, idx_p)
+        use_power |= total <= 0
+        idx = dr.select(use_power, idx_p, idx_a)
+        if is_jit():
+            p_power = dr.select(use_power, p_power, dr.gather(mi.Float, self.power_pmf, idx))
+        else:
+            p_power = float(self.pmf_np[idx])
+        sel = self._mix(dr.select(use_power, e_p, e_a), total, p_power)
+        return self._emitter(idx, active), sel, total
 
 
 def make(scene, mode: str) -> LightSelection:

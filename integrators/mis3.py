@@ -137,9 +137,10 @@ class MIS3(IntegratorTemplate):
             use_2 = lnot(use_l) & lnot(use_1)
 
             # ---- technique 3: light sampling (ends the path) ----
+            norm = None   # the light selection's normaliser at si, reused by technique 1/2
             if is_jit() or (active and use_l and has_lights):
                 act_l = active & use_l
-                ds, em_w = sel.sample_direction(si, s_l, s2, act_l)
+                ds, em_w, norm = sel.sample_direction(si, s_l, s2, act_l)
                 act_l &= dr.any(em_w != 0)
                 act_l &= lnot(scene.ray_test(si.spawn_ray_to(ds.p), act_l))
                 wo = si.to_local(ds.d)
@@ -169,7 +170,7 @@ class MIS3(IntegratorTemplate):
                 w_ind = dr.select(delta, 1.0, dr.select(use_1, w_ind[0], w_ind[1]))
                 ray_b = si.spawn_ray(si.to_world(wo))
                 si_b = scene.ray_intersect(ray_b, act_b)
-                q3 = p3 * sel.pdf_direction(si, si_b, smooth_b)
+                q3 = p3 * sel.pdf_direction(si, si_b, smooth_b, norm)
                 w_dir = self.heur.weights([q3, q1, q2])   # light first: partition priority
                 w_dir = dr.select(delta, 1.0, dr.select(use_1, w_dir[1], w_dir[2]))
                 L += dr.select(act_b, beta * ratio * w_dir * emitted(scene, si_b, act_b), 0.0)

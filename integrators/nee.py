@@ -20,12 +20,13 @@ from .common import is_jit, lnot
 
 
 def sample_light(scene, sel, sampler, si, active):
-    """One light sample at ``si``: (ds, weight L_e G / (p(k) p_k), mask of visible samples)."""
+    """One light sample at ``si``: (ds, weight L_e G / (p(k) p_k), mask of visible samples,
+    the selection's ``norm`` at ``si`` for :func:`emission_weight`)."""
     s1, s2 = sampler.next_1d(active), sampler.next_2d(active)
-    ds, em_weight = sel.sample_direction(si, s1, s2, active)
+    ds, em_weight, norm = sel.sample_direction(si, s1, s2, active)
     act = active & dr.any(em_weight != 0)
     act &= lnot(scene.ray_test(si.spawn_ray_to(ds.p), act))
-    return ds, em_weight, act
+    return ds, em_weight, act, norm
 
 
 def light_weight(heur, n_l: int, n_b: int, ds, bsdf_pdf):
@@ -40,7 +41,7 @@ def light_estimate(scene, sel, heur, sampler, ctx, si, bsdf, n_l: int, n_b: int,
     j = mi.UInt32(0)
     while dr.hint(j < n_l, label="light samples"):
         if is_jit() or active:
-            ds, em_weight, act = sample_light(scene, sel, sampler, si, active)
+            ds, em_weight, act, _ = sample_light(scene, sel, sampler, si, active)
             f, pdf_b = bsdf.eval_pdf(ctx, si, si.to_local(ds.d), act)
             w = light_weight(heur, n_l, n_b, ds, pdf_b)
             L += dr.select(act, f * em_weight * w, 0.0)
@@ -51,9 +52,11 @@ def light_estimate(scene, sel, heur, sampler, ctx, si, bsdf, n_l: int, n_b: int,
     return L / n_l
 
 
-def emission_weight(heur, sel, n_l: int, n_b: int, si_prev, si, bsdf_pdf, bsdf_delta, active):
-    """MIS weight of emission at ``si`` reached from ``si_prev`` by BSDF sampling."""
+def emission_weight(heur, sel, n_l: int, n_b: int, si_prev, si, bsdf_pdf, bsdf_delta, active,
+                    norm=None):
+    """MIS weight of emission at ``si`` reached from ``si_prev`` by BSDF sampling (``norm``:
+    from a light sample at ``si_prev``, saves the adaptive selection a pass)."""
     if n_l == 0:
         return mi.Float(1.0)
-    pdf_l = sel.pdf_direction(si_prev, si, active & lnot(bsdf_delta))
+    pdf_l = sel.pdf_direction(si_prev, si, active & lnot(bsdf_delta), norm)
     return dr.select(bsdf_delta, 1.0, heur.weight(1, [n_l * pdf_l, n_b * bsdf_pdf]))

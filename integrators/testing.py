@@ -15,7 +15,8 @@ Method (used by the test suite and meant for users' own integrators):
   about 220 such checks (the count is printed at the end of every run), 0.33 % together.
 * **Suite budget (at most 1 % false failures per full run, union bound):** t / Welch checks
   0.33 %; phong chi-square, albedo <= 1, albedo vs quadrature and normal-incidence families
-  0.1 % each (0.4 %); light-sampling chi-square 0.1 %; adaptive-pmf chi-square 0.1 %; two
+  0.1 % each (0.4 %); light-sampling chi-square 0.1 %; adaptive-pmf chi-square 0.1 % (two
+  loop modes at 0.05 % each); two
   Wilcoxon variance-order tests 0.02 %; about 15 one-sided variance (Veach bound) tests at 4
   standard errors, 0.05 %.  Total about 1.0 %.  All seeds are fixed, so a given checkout passes
   or fails deterministically; the rate is over the choice of seeds.

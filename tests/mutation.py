@@ -63,6 +63,12 @@ MUTANTS = [
     ("adaptive-pmf-not-normalised", "integrators/light_selection.py",
      "return (1.0 - DEFENSIVE) * adaptive + DEFENSIVE * p_power",
      "return adaptive + DEFENSIVE * p_power", ["test_light_selection_variance.py"]),
+    ("adaptive-reservoir-skewed", "integrators/light_selection.py",
+     "take = u < p\n", "take = u < p * 0.9\n", ["test_light_selection_variance.py"]),
+    ("adaptive-stale-norm", "integrators/light_selection.py",
+     "total = self._total(si) if norm is None else norm\n",
+     "total = self._total(si) if norm is None else norm * 1.1\n",
+     ["test_light_selection_variance.py", "test_nee_path.py", "test_mis3.py"]),
 ]
 
 

@@ -47,7 +47,7 @@ def adapters(sc, mode, drop_selection=False):
 
     def sample(s):
         n = dr.width(s)
-        ds, w = sel.sample_direction(origin_si(n), s[0], mi.Point2f(s[1], s[2]))
+        ds, w, _ = sel.sample_direction(origin_si(n), s[0], mi.Point2f(s[1], s[2]))
         return ds.d
 
     def pdf(wo):
