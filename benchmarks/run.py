@@ -914,6 +914,7 @@ def main(argv=None):
         (out / ".gitignore").write_text("# the results snapshot keeps its PNGs (the root "
                                         ".gitignore ignores *.png elsewhere)\n!*.png\n")
     t0 = time.perf_counter()
+    git = _git_state()   # before this run writes into a tracked results folder
     results, per_scene_s = {}, {}
     env = dict(os.environ)
     env["PYTHONPATH"] = os.pathsep.join(p for p in (str(REPO), env.get("PYTHONPATH")) if p)
@@ -942,10 +943,10 @@ def main(argv=None):
     flip_reasons = sorted({r.get("flip_unavailable_reason") for r in results.values()
                            if r.get("flip_unavailable_reason")})
     meta = {
-        "command": "python -m benchmarks run " + shlex.join(argv if argv is not None
-                                                            else sys.argv[1:]),
+        "command": " ".join(["python -m benchmarks run",
+                             shlex.join(argv if argv is not None else sys.argv[1:])]).strip(),
         "date_utc": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
-        "git": _git_state(), "machine": _machine(),
+        "git": git, "machine": _machine(),
         "variant": first.get("variant"), "mitsuba_version": first.get("mitsuba_version"),
         "drjit_version": first.get("drjit_version"),
         "settings": asdict(settings), "path_max_depth": PATH_DEPTH,
