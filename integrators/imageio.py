@@ -31,6 +31,19 @@ def _atomic(path: Path, write) -> None:
         raise
 
 
+def write_text(path, text: str) -> Path:
+    """A text file (JSON, Markdown), written atomically."""
+    _atomic(Path(path), lambda tmp: Path(tmp).write_text(text))
+    return Path(path)
+
+
+def write_with(path, writer) -> Path:
+    """Atomic write by any ``writer(tmp_path)`` that writes a whole file (a matplotlib figure,
+    a PIL image); the temporary name keeps the suffix, so writers that infer the format work."""
+    _atomic(Path(path), writer)
+    return Path(path)
+
+
 def to_bitmap(image, metadata: dict | None = None) -> "mi.Bitmap":
     arr = np.asarray(image, dtype=np.float32)
     if arr.ndim == 2:
