@@ -215,8 +215,8 @@ STABILITY_FACTOR = 2.0
 
 # remarks a reader needs next to a scene's headline numbers
 SCENE_NOTES = {
-    "furnace": "BSDF sampling is exact inside the silhouette here (cosine sampling of a diffuse "
-               "BSDF under constant radiance has zero variance), so `bsdf_path`'s ratio only "
+    "furnace": "BSDF sampling is exact inside the silhouette here, since cosine sampling of a "
+               "diffuse BSDF under constant radiance has zero variance: `bsdf_path`'s ratio only "
                "measures the silhouette pixels",
 }
 
