@@ -318,7 +318,6 @@ class AdaptiveLightSelection(LightSelection):
             nx=normal[:, 0], ny=normal[:, 1], nz=normal[:, 2], scale=scale)
         if is_jit():
             self.t = {k: mi.Float(v.astype(np.float32)) for k, v in self.tables.items()}
-            self.power_pmf = mi.Float(self.pmf_np.astype(np.float32))
             ids = np.array(dr.reinterpret_array(mi.UInt32, self.emitters_dr), dtype=np.int64)
             idx = np.zeros(int(ids.max()) + 1, dtype=np.uint32)
             idx[ids] = np.arange(self.count, dtype=np.uint32)
@@ -427,16 +426,13 @@ class AdaptiveLightSelection(LightSelection):
         use_power = sample1 < DEFENSIVE
         u = dr.select(use_power, sample1 / DEFENSIVE, (sample1 - DEFENSIVE) / (1.0 - DEFENSIVE))
         u = dr.minimum(u, ONE_MINUS_EPS)
-        idx_p, p_power = self.distr.sample_pmf(u, active)
+        idx_p, _ = self.distr.sample_pmf(u, active)
         idx_a, e_a, e_p, total = self._scan(si, u, idx_p)
         use_power |= total <= 0
         idx = dr.select(use_power, idx_p, idx_a)
-        if is_jit():
-            p_power = dr.select(use_power, p_power, dr.gather(mi.Float, self.power_pmf, idx))
-        else:
-            p_power = float(self.pmf_np[idx])
-        sel = self._mix(dr.select(use_power, e_p, e_a), total, p_power)
-        return self._emitter(idx, active), sel, total
+        emitter = self._emitter(idx, active)
+        sel = self._mix(dr.select(use_power, e_p, e_a), total, self.pmf(emitter, active))
+        return emitter, sel, total
 
 
 def make(scene, mode: str) -> LightSelection:
