@@ -24,7 +24,7 @@ def child(scene_path, spp, mode):
     import drjit as dr
     import integrators  # noqa: F401
     import mitsuba as mi
-    from integrators import progressive
+    from integrators.app import progressive
     scene = mi.load_file(scene_path)
     if mode == "progressive":
         progressive.render(scene, spp=spp, seed=0)

@@ -91,7 +91,7 @@ import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
-from integrators.imageio import write_text, write_with
+from integrators.app.imageio import write_text, write_with
 
 REPO = Path(__file__).resolve().parent.parent
 DEFAULT_OUT = REPO / "out" / "experiments"        # untracked (the root .gitignore)
@@ -327,7 +327,7 @@ class Worker:
     def lights(self) -> dict:
         """The scene's emitters and the selection pmf of ``light_selection=power`` (nee_path's
         default; Mitsuba's path selects uniformly)."""
-        from integrators.light_selection import selection_pmf
+        from integrators.sampling.light_selection import selection_pmf
         ems = self.scene.emitters()
         kinds = [str(e).split("[", 1)[0].strip() for e in ems]
         pmf = selection_pmf(self.scene, "power")
@@ -403,7 +403,8 @@ class Worker:
 
     def reference(self, group: str) -> tuple:
         """(reference image, its variance, info dict) for a group, rendered or from the cache."""
-        from integrators import progressive, testing
+        from integrators import testing
+        from integrators.app import progressive
         mi, np = self.mi, self.np
         depth = GROUPS[group]["max_depth"]
         ref_int = reference_integrator(depth)

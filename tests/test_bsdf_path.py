@@ -12,7 +12,7 @@ import pytest
 
 import integrators  # noqa: F401
 from integrators import testing
-from integrators.bsdf_path import HEMISPHERE
+from integrators.plugins.bsdf_path import HEMISPHERE
 
 from scenes import closed_sphere_scene, furnace_scene
 
@@ -54,7 +54,8 @@ def test_closed_sphere_geometric_series(hemisphere, max_depth):
 
 
 def test_negative_control_rr_without_compensation(monkeypatch):
-    from integrators import base, bsdf_path
+    from integrators.sampling import roulette as base
+    from integrators.plugins import bsdf_path
     orig = base.russian_roulette
 
     def biased(beta, eta, depth, rr_depth, u, active):

@@ -26,7 +26,7 @@ def test_render_writes_exr_and_png(tmp_path):
     assert r.returncode == 0, r.stderr
     assert out.is_file() and out.with_suffix(".png").is_file()
     import integrators  # noqa: F401
-    from integrators.imageio import read_exr
+    from integrators.app.imageio import read_exr
     img = read_exr(out)
     assert img.shape == (27, 48, 3) and np.all(np.isfinite(img)) and img.max() > 0
     assert not [p for p in out.parent.iterdir() if p.name.startswith(".")]  # no temp files

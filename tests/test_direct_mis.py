@@ -16,8 +16,9 @@ import numpy as np
 import pytest
 
 import integrators  # noqa: F401
-from integrators import mis, testing
-from integrators.mis import HEURISTICS
+from integrators import testing
+from integrators.sampling import mis
+from integrators.sampling.mis import HEURISTICS
 
 from scenes import POINTS, plane_scene
 

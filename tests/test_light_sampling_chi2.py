@@ -15,7 +15,7 @@ import mitsuba as mi
 import pytest
 
 import integrators  # noqa: F401
-from integrators.light_selection import make
+from integrators.sampling.light_selection import make
 
 from scenes import light_rect
 

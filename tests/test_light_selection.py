@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 import integrators  # noqa: F401
-from integrators.light_selection import LightSelection, emitter_power, selection_pmf
+from integrators.sampling.light_selection import LightSelection, emitter_power, selection_pmf
 
 T = mi.ScalarTransform4f
 

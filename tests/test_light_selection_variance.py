@@ -21,7 +21,7 @@ from scipy import stats
 
 import integrators  # noqa: F401
 from integrators import testing
-from integrators.light_selection import AdaptiveLightSelection
+from integrators.sampling.light_selection import AdaptiveLightSelection
 
 ROOT = Path(__file__).resolve().parents[1]
 _spec = importlib.util.spec_from_file_location("make_many_lights",

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 import integrators  # noqa: F401
-from integrators.mis import HEURISTICS, Heuristic
+from integrators.sampling.mis import HEURISTICS, Heuristic
 
 
 def random_q(rng, n_tech, n=20000):

@@ -13,7 +13,8 @@ import mitsuba as mi
 import pytest
 
 import integrators  # noqa: F401
-from integrators import mis, testing
+from integrators import testing
+from integrators.sampling import mis
 
 from scenes import closed_box_scene, plane_scene
 

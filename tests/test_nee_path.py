@@ -15,7 +15,7 @@ import pytest
 
 import integrators  # noqa: F401
 from integrators import testing
-from integrators.nee_path import RR_MODES
+from integrators.sampling.roulette import RR_MODES
 
 from scenes import closed_box_scene
 
@@ -49,7 +49,7 @@ def test_closed_sphere_other_settings(extra):
 
 
 def test_negative_control_rr_without_compensation(monkeypatch):
-    from integrators import nee_path
+    from integrators.plugins import nee_path
     orig = nee_path.roulette
 
     def biased(mode, rr_depth, rr_prob, beta, eta, depth, u, active):
@@ -105,7 +105,7 @@ def test_negative_control_max_depth_7_vs_8(cornell, mitsuba_path_images):
 
 
 def test_negative_control_split_weight(monkeypatch):
-    from integrators import nee_path
+    from integrators.plugins import nee_path
     monkeypatch.setattr(nee_path, "split_weight", lambda k: 1.0 / (k - 1))
     r = closed_check({"type": "nee_path", "split": 4})
     assert not r.passed, r

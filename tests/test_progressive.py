@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 
 import integrators  # noqa: F401
-from integrators import progressive
-from integrators.imageio import read_layers
+from integrators.app import progressive
+from integrators.app.imageio import read_layers
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENE = ROOT / "scenes" / "veach_mis.xml"

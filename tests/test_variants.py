@@ -45,7 +45,7 @@ def test_scalar_bsdf_path(scalar, hemisphere):
 
 
 def test_scalar_power_pmf_matches_llvm():
-    from integrators.light_selection import selection_pmf
+    from integrators.sampling.light_selection import selection_pmf
     from test_light_selection import scene_dict
     ref = selection_pmf(mi.load_dict(scene_dict()), "power")
     integrators.set_variant("scalar_rgb")
@@ -57,7 +57,7 @@ def test_scalar_power_pmf_matches_llvm():
 
 
 def test_set_variant_rejects_unknown():
-    with pytest.raises(ValueError, match="unknown Mitsuba variant 'nope'"):
+    with pytest.raises(ValueError, match="variant 'nope' is not available"):
         integrators.set_variant("nope")
 
 
@@ -68,3 +68,32 @@ def test_scalar_path_integrators(scalar, integ):
     from scenes import closed_box_scene
     expected = 2.0 if integ["type"] != "direct_mis" else 1.5   # direct: L_e + rho L_e
     _check(closed_box_scene(0.5, 1.0), [expected], integ, spp=128)
+
+
+_ORDER_SCRIPT = r"""
+import mitsuba as mi
+{before}
+import integrators
+{after}
+for v in ("scalar_rgb", "llvm_ad_rgb", "scalar_rgb"):
+    mi.set_variant(v)
+    for name in ("nee_path", "mis3", "direct_mis", "bsdf_path"):
+        mi.load_dict({{"type": name}})
+    mi.load_dict({{"type": "phong"}})
+print("ok", mi.variant())
+"""
+
+
+@pytest.mark.parametrize("before,after", [
+    ("", ""),                                        # import first, set_variant later
+    ("mi.set_variant('scalar_rgb')", ""),            # set_variant first, then import
+    ("", "mi.set_variant('scalar_spectral')"),       # a variant never used before
+])
+def test_plugins_load_after_a_later_set_variant(before, after):
+    """Registration follows Mitsuba's variant changes, in either order of import and
+    ``mi.set_variant`` (a fresh interpreter each time, so nothing is registered in advance)."""
+    import subprocess
+    import sys
+    code = _ORDER_SCRIPT.format(before=before, after=after)
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0 and "ok scalar_rgb" in r.stdout, r.stderr[-2000:]

@@ -22,10 +22,11 @@ from __future__ import annotations
 import drjit as dr
 import mitsuba as mi
 
-from .base import MAX_DEPTH, RR_DEPTH, IntegratorTemplate, russian_roulette
-from .common import bsdf_at, depth_limit, emitted, is_jit, lnot
-from .params import Param
-from .registry import plugin
+from ..sampling.roulette import RR_DEPTH, russian_roulette
+from .base import MAX_DEPTH, IntegratorTemplate
+from ..common import bsdf_at, depth_limit, emitted, is_jit, lnot
+from ..params import Param
+from ..registry import plugin
 
 HEMISPHERE = ("uniform", "cosine", "bsdf")
 

@@ -44,11 +44,12 @@ import dataclasses
 import drjit as dr
 import mitsuba as mi
 
-from . import light_selection, mis
-from .base import MAX_DEPTH, RR_PARAMS, IntegratorTemplate, roulette
-from .common import any_flag, bsdf_at, bsdf_flags, channel_mean, depth_limit, emitted, is_jit, lnot
-from .params import Param, ParameterError
-from .registry import plugin
+from ..sampling import light_selection, mis
+from ..sampling.roulette import RR_PARAMS, roulette
+from .base import MAX_DEPTH, IntegratorTemplate
+from ..common import any_flag, bsdf_at, bsdf_flags, channel_mean, depth_limit, emitted, is_jit, lnot
+from ..params import Param, ParameterError
+from ..registry import plugin
 
 DIFFUSE = mi.BSDFFlags.DiffuseReflection | mi.BSDFFlags.DiffuseTransmission
 GLOSSY = (mi.BSDFFlags.GlossyReflection | mi.BSDFFlags.GlossyTransmission |

@@ -245,7 +245,7 @@ def cmd_merge(args) -> int:
 
 
 def cmd_list(args) -> int:
-    from . import registry
+    from .. import registry
     for name, p in sorted(registry.plugins().items()):
         print(f"{name} ({p.kind}): {p.summary}")
         for s in p.params:

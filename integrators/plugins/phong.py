@@ -29,9 +29,9 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from .common import channel_mean
-from .params import Param, ParameterError, read
-from .registry import plugin
+from ..common import channel_mean
+from ..params import Param, ParameterError, read
+from ..registry import plugin
 
 DIFFUSE, GLOSSY = 0, 1
 

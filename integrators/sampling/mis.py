@@ -37,7 +37,7 @@ from typing import Sequence
 import drjit as dr
 import mitsuba as mi
 
-from .params import Param
+from ..params import Param
 
 HEURISTICS = ("balance", "power", "cutoff", "maximum", "average", "partition")
 

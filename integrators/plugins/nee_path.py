@@ -28,11 +28,12 @@ import dataclasses
 import drjit as dr
 import mitsuba as mi
 
-from . import light_selection, mis, nee
-from .base import MAX_DEPTH, RR_MODES, RR_PARAMS, IntegratorTemplate, roulette  # noqa: F401
-from .common import bsdf_at, bsdf_flags, depth_limit, emitted
-from .params import Param
-from .registry import plugin
+from ..sampling import light_selection, mis, vertex as nee
+from ..sampling.roulette import RR_MODES, RR_PARAMS, roulette  # noqa: F401
+from .base import MAX_DEPTH, IntegratorTemplate
+from ..common import bsdf_at, bsdf_flags, depth_limit, emitted
+from ..params import Param
+from ..registry import plugin
 
 def split_weight(k: int) -> float:
     """Weight of each of the k continuations of a split: their average is unbiased."""

@@ -1,42 +1,14 @@
-"""Shared pieces of the integrator templates: common parameters and the plugin boilerplate."""
+"""Russian roulette (and the weight of splitting): ending or multiplying paths without bias."""
 from __future__ import annotations
 
 import drjit as dr
 import mitsuba as mi
 
-from .common import lnot
-from .params import Param, read
+from ..common import lnot
+from ..params import Param
 
-MAX_DEPTH = Param("max_depth", "int", -1, min=0, allow=(-1,),
-                  doc="Longest path depth (-1: unlimited; 1: emitters seen directly; "
-                      "2: direct light), Mitsuba's meaning.")
 RR_DEPTH = Param("rr_depth", "int", 5, min=1,
                  doc="Path depth at which Russian roulette starts.")
-
-
-class IntegratorTemplate:
-    """Base of our integrator templates (made into ``mi.SamplingIntegrator`` subclasses)."""
-
-    PARAMS: tuple = ()
-    NAME = "integrator"
-
-    def __init__(self, props):
-        self._base.__init__(self, props)
-        self.params = read(self.NAME, self.PARAMS, props)
-        for k, v in self.params.items():
-            setattr(self, k, v)
-        self.setup()
-
-    def setup(self):
-        """Derived state from ``self.params`` (override)."""
-
-    def aov_names(self):
-        return []
-
-    def to_string(self):
-        body = ",\n".join(f"  {k} = {v!r}" for k, v in self.params.items())
-        return f"{self.NAME}[\n{body}\n]"
-
 
 RR_MODES = ("none", "fixed", "throughput")
 

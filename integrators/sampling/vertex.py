@@ -16,7 +16,7 @@ from __future__ import annotations
 import drjit as dr
 import mitsuba as mi
 
-from .common import is_jit, lnot
+from ..common import is_jit, lnot
 
 
 def sample_light(scene, sel, sampler, si, active):

@@ -35,8 +35,8 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from .common import channel_mean, is_jit
-from .params import Param
+from ..common import channel_mean, is_jit
+from ..params import Param
 
 MODES = ("uniform", "power", "adaptive")
 

@@ -22,11 +22,11 @@ from __future__ import annotations
 import drjit as dr
 import mitsuba as mi
 
-from . import light_selection, mis, nee
+from ..sampling import light_selection, mis, vertex as nee
 from .base import IntegratorTemplate
-from .common import bsdf_at, bsdf_flags, emitted, is_jit
-from .params import Param
-from .registry import plugin
+from ..common import bsdf_at, bsdf_flags, emitted, is_jit
+from ..params import Param
+from ..registry import plugin
 
 
 @plugin("direct_mis", "integrator")

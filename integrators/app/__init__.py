@@ -1,0 +1,1 @@
+"""The application: command line, progressive rendering, image files, the run record."""

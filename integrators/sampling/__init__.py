@@ -1,0 +1,1 @@
+"""Sampling strategies of the lecture, shared by the plugins."""
