@@ -3,12 +3,14 @@
     render SCENE.xml [-D name=value ...] [--spp N | --time S] [--seed S] [-o OUT.exr]
                      [--variant V] [--checkpoint SECONDS] [--quiet]
         Renders with the scene's own integrator, progressively in passes (see
-        integrators.progressive), and writes OUT.exr (RGB + variance layer, run description in
-        the header) plus OUT.png (sRGB preview).  -D sets the XML ``$name`` defaults, as
+        integrators.app.progressive), and writes OUT.exr (RGB + variance layer, the run record
+        in the header: integrators.app.record) plus OUT.png (sRGB preview).  -D sets the XML ``$name`` defaults, as
         Mitsuba's own command line does.  Ctrl-C / SIGTERM finish the pass in flight, write what
         was accumulated and exit with 130 / 143.
     merge A.exr B.exr ... -o OUT.exr
-        Sample-weighted mean of independent runs of the same scene and integrator.
+        Sample-weighted mean of independent runs of the same scene and integrator; refuses
+        runs whose records differ (scene content, integrator, parameters, variant, defines) or
+        whose seed ranges overlap.
     list
         Every registered plugin with its parameters, defaults and allowed values (the same specs
         the plugins validate with).
@@ -129,18 +131,13 @@ def cmd_render(args) -> int:
         scene = mi.load_file(str(scene_path), **defines)
     except Exception as e:  # Mitsuba reports parse and plugin errors as RuntimeError
         raise UserError(f"{scene_path}: {_clean(e)}") from None
-    import hashlib
-
-    meta = {"scene": str(scene_path.resolve()),
-            "scene_sha1": hashlib.sha1(scene_path.read_bytes()).hexdigest(),
-            "integrator": " ".join(str(scene.integrator()).split()),
-            "variant": mi.variant(), "defines": " ".join(f"{k}={v}" for k, v in
-                                                         sorted(defines.items()))}
-    acc, stopped = _run(scene, args, out, meta)
+    from .record import RunRecord
+    record = RunRecord.for_scene(scene_path, scene.integrator(), mi.variant(), defines)
+    acc, stopped = _run(scene, args, out, record)
     if acc is None:
         print("error: stopped before the first pass finished; nothing written", file=sys.stderr)
         return 130
-    _write(out, acc, meta)
+    _write(out, acc)
     rate = acc.spp * acc.s.shape[0] * acc.s.shape[1] / max(acc.seconds, 1e-9)
     print(f"wrote {out} and {out.with_suffix('.png')} ({acc.s.shape[1]}x{acc.s.shape[0]}, "
           f"{acc.spp} spp in {acc.passes} passes, {acc.seconds:.2f} s, "
@@ -152,20 +149,21 @@ def cmd_render(args) -> int:
     return 0
 
 
-def _write(out, acc, meta):
+def _write(out, acc):
+    """EXR (estimate, variance, ``acc``'s run record) and PNG preview."""
     from . import progressive
     from .imageio import write_png
     bad = int(np.count_nonzero(~np.isfinite(acc.s)))
     if bad:
         print(f"warning: {bad} non-finite pixel values (NaN/Inf) in the image", file=sys.stderr)
     try:
-        progressive.write(out, acc, meta)
+        progressive.write(out, acc)
         write_png(out.with_suffix(".png"), acc.mean())
     except OSError as e:
         raise UserError(f"cannot write {out}: {e.strerror or e}") from None
 
 
-def _run(scene, args, out, meta):
+def _run(scene, args, out, record):
     """Progressive render with a progress bar, signal handling and checkpoints.
     Returns (accumulator or None, name of the stopping signal or None)."""
     import signal
@@ -193,13 +191,13 @@ def _run(scene, args, out, meta):
             bar.set_postfix_str(f"{acc.spp} spp, {acc.spp * w * h / max(acc.seconds, 1e-9) / 1e6:.2f} M samples/s")
             bar.update((acc.spp if args.time is None else min(acc.seconds, args.time)) - bar.n)
         if args.checkpoint and time.monotonic() - state["last_ckpt"] >= args.checkpoint:
-            _write(out, acc, meta)
+            _write(out, acc)
             state["last_ckpt"] = time.monotonic()
 
     try:
         try:
             acc = progressive.render(scene, spp=args.spp, time_budget=args.time, seed=args.seed,
-                                     stop=stop, on_pass=on_pass)
+                                     stop=stop, on_pass=on_pass, record=record)
         except KeyboardInterrupt:
             acc = state["acc"]
             state["signal"] = state["signal"] or "SIGINT"
@@ -235,10 +233,10 @@ def cmd_merge(args) -> int:
     if out.suffix.lower() != ".exr":
         raise UserError(f"output {out}: the file name must end in .exr")
     try:
-        acc, meta = progressive.merge([str(p) for p in paths])
+        acc = progressive.merge([str(p) for p in paths])
     except (ValueError, RuntimeError) as e:
         raise UserError(_clean(e)) from None
-    _write(out, acc, meta)
+    _write(out, acc)
     print(f"wrote {out} and {out.with_suffix('.png')}: {len(paths)} runs, {acc.spp} spp, "
           f"seeds {acc.seed_first}-{acc.seed_last}")
     return 0

@@ -23,11 +23,13 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Callable
 
 import mitsuba as mi
 import numpy as np
+
+from .record import RunRecord
 
 MAX_SAMPLES_PER_PASS = 1 << 24
 PASS_SECONDS = 0.25
@@ -46,7 +48,9 @@ class Stop:
 
 @dataclass
 class Accumulator:
-    """Running sums of pass means (see the module docstring)."""
+    """Running sums of pass means (see the module docstring), the counts of the run, and its
+    :class:`RunRecord` (``record``: scene, integrator, variant, defines; the counts in it are
+    filled in by :meth:`run_record`)."""
     s: np.ndarray
     s2: np.ndarray
     spp: int = 0
@@ -54,12 +58,14 @@ class Accumulator:
     seed_first: int = 0
     seed_last: int = -1
     seconds: float = 0.0
-    meta: dict = field(default_factory=dict)
+    record: RunRecord = field(default_factory=RunRecord)
+    #: seed ranges [[first, last], ...]: one for a render, one per run for a merge
+    seed_ranges: list = field(default_factory=list)
 
     @classmethod
-    def empty(cls, shape, seed_first=0):
+    def empty(cls, shape, seed_first=0, record: RunRecord | None = None):
         return cls(np.zeros(shape), np.zeros(shape), seed_first=seed_first,
-                   seed_last=seed_first - 1)
+                   seed_last=seed_first - 1, record=record or RunRecord())
 
     def add(self, image: np.ndarray, spp: int, seed: int):
         x = np.asarray(image, dtype=np.float64)
@@ -68,6 +74,17 @@ class Accumulator:
         self.spp += spp
         self.passes += 1
         self.seed_last = seed
+        if self.seed_ranges:
+            self.seed_ranges[-1][1] = seed
+        else:
+            self.seed_ranges = [[self.seed_first, seed]]
+
+    def run_record(self) -> RunRecord:
+        """``record`` with this accumulator's spp, passes, seeds and seconds."""
+        ranges = self.seed_ranges or [[self.seed_first, self.seed_last]]
+        return replace(self.record, spp=self.spp, passes=self.passes,
+                       seed_first=self.seed_first, seed_last=self.seed_last,
+                       seconds=float(self.seconds), seed_ranges=[list(r) for r in ranges])
 
     def mean(self) -> np.ndarray:
         return self.s / max(self.spp, 1)
@@ -81,18 +98,21 @@ class Accumulator:
         return sigma2 / self.spp
 
     @classmethod
-    def from_estimate(cls, mean, variance, spp, passes, seed_first, seed_last, meta=None):
-        """Rebuild the sums from a written estimate (used by merge)."""
+    def from_estimate(cls, mean, variance, record: RunRecord) -> "Accumulator":
+        """Rebuild the sums from a written estimate and its record (used by merge)."""
+        spp, passes = record.spp, record.passes
         mean = np.asarray(mean, np.float64)
         sigma2 = np.asarray(variance, np.float64) * spp
         s2 = sigma2 * max(passes - 1, 0) + spp * mean * mean
-        return cls(mean * spp, s2, spp, passes, seed_first, seed_last, meta=dict(meta or {}))
+        return cls(mean * spp, s2, spp, passes, record.seed_first, record.seed_last,
+                   record.seconds, record=record,
+                   seed_ranges=[list(r) for r in record.ranges()])
 
     def merge(self, other: "Accumulator") -> "Accumulator":
-        return Accumulator(self.s + other.s, self.s2 + other.s2, self.spp + other.spp,
-                           self.passes + other.passes, min(self.seed_first, other.seed_first),
-                           max(self.seed_last, other.seed_last),
-                           self.seconds + other.seconds, dict(self.meta))
+        rec = self.run_record().merged(other.run_record())
+        return Accumulator(self.s + other.s, self.s2 + other.s2, rec.spp, rec.passes,
+                           rec.seed_first, rec.seed_last, rec.seconds, record=rec,
+                           seed_ranges=[list(r) for r in rec.seed_ranges])
 
 
 def film_size(scene, sensor: int = 0):
@@ -102,9 +122,11 @@ def film_size(scene, sensor: int = 0):
 
 def render(scene, spp: int | None = None, time_budget: float | None = None, seed: int = 0,
            sensor: int = 0, stop: Stop | None = None,
-           on_pass: Callable[[Accumulator], None] | None = None) -> Accumulator:
+           on_pass: Callable[[Accumulator], None] | None = None,
+           record: RunRecord | None = None) -> Accumulator:
     """Render ``scene`` in passes until ``spp`` samples per pixel, ``time_budget`` seconds, or
-    ``stop``; returns the accumulated estimate (see the module docstring)."""
+    ``stop``; returns the accumulated estimate (see the module docstring), which carries
+    ``record`` (the run's identity: ``RunRecord.for_scene``) for :func:`write`."""
     if spp is None and time_budget is None:
         spp = scene.sensors()[sensor].sampler().sample_count()
     w, h = film_size(scene, sensor)
@@ -123,7 +145,7 @@ def render(scene, spp: int | None = None, time_budget: float | None = None, seed
         img = np.array(img, dtype=np.float64)
         dt = time.perf_counter() - t_pass
         if acc is None:
-            acc = Accumulator.empty(img.shape, seed_first=next_seed)
+            acc = Accumulator.empty(img.shape, seed_first=next_seed, record=record)
         acc.add(img, n, next_seed)
         next_seed += 1
         acc.seconds = time.perf_counter() - t0
@@ -142,51 +164,57 @@ def render(scene, spp: int | None = None, time_budget: float | None = None, seed
 
 
 # ---------------------------------------------------------------------------------------------
-# files: EXR with an RGB layer, a variance layer and the run's description in its header
-META_KEYS = ("scene", "integrator", "variant", "defines", "spp", "passes", "seed_first",
-             "seed_last", "seconds")
-
-
-def write(path, acc: Accumulator, meta: dict) -> None:
+# files: EXR with an RGB layer, a variance layer and the run record in its header
+def write(path, acc: Accumulator, meta: RunRecord | dict | None = None) -> None:
+    """Write ``acc`` (estimate, variance layer) with its run record in the header
+    (:meth:`RunRecord.header`).  ``meta`` replaces the accumulator's record identity: a
+    RunRecord, or a dict of RunRecord fields (other keys become extra header attributes)."""
     from .imageio import write_layers
-    header = dict(meta)
-    header.update(spp=acc.spp, passes=acc.passes, seed_first=acc.seed_first,
-                  seed_last=acc.seed_last, seconds=f"{acc.seconds:.3f}")
+    extra = {}
+    if isinstance(meta, dict):
+        names = set(RunRecord.__dataclass_fields__)
+        extra = {k: v for k, v in meta.items() if k not in names}
+        meta = RunRecord.from_dict(meta)
+    if meta is not None:
+        acc = replace(acc, record=meta)
+    header = {**extra, **acc.run_record().header()}
     write_layers(path, {"": acc.mean(), "variance": acc.variance()}, header)
 
 
 def read(path) -> Accumulator:
+    """The accumulator of a file written by :func:`write`; ValueError("PATH: not an EXR
+    written by render ...") for anything else."""
     from .imageio import read_layers
     layers, meta = read_layers(path)
-    missing = [k for k in ("spp", "passes", "seed_first", "seed_last") if k not in meta]
-    if missing or "variance" not in layers:
-        raise ValueError(f"{path}: not a render of this tool (no {', '.join(missing) or 'variance layer'})")
-    acc = Accumulator.from_estimate(layers[""], layers["variance"], int(meta["spp"]),
-                                    int(meta["passes"]), int(meta["seed_first"]),
-                                    int(meta["seed_last"]), meta)
-    acc.seconds = float(meta.get("seconds", 0.0))
-    return acc
+    try:
+        record = RunRecord.from_header(meta)
+    except (KeyError, ValueError, TypeError) as e:
+        what = f"no {e.args[0]} attribute" if isinstance(e, KeyError) else "bad run_record"
+        raise ValueError(f"{path}: not an EXR written by render ({what})") from None
+    if "" not in layers or "variance" not in layers:
+        raise ValueError(f"{path}: not an EXR written by render (no RGB or variance layer)")
+    if layers[""].shape[-1] != 3 or layers["variance"].shape != layers[""].shape:
+        raise ValueError(f"{path}: not an EXR written by render (layers are not RGB)")
+    return Accumulator.from_estimate(layers[""], layers["variance"], record)
 
 
-def merge(paths) -> tuple[Accumulator, dict]:
-    """Sample-weighted merge of independent runs; refuses different scenes, integrators,
-    variants or overlapping seed ranges."""
+def merge(paths) -> Accumulator:
+    """Sample-weighted merge of independent runs; refuses runs whose records cannot be merged
+    (:meth:`RunRecord.merge_problem`: scene content, integrator and parameters, variant,
+    defines, overlapping seed ranges) and different image sizes.  The result carries the
+    merged record (``seed_ranges`` lists every run's range)."""
+    paths = [str(p) for p in paths]
     accs = [read(p) for p in paths]
-    first = accs[0].meta
-    for p, a in zip(paths[1:], accs[1:]):
-        for key in ("scene", "integrator", "variant", "defines"):
-            if a.meta.get(key) != first.get(key):
-                raise ValueError(f"{p}: {key} differs from {paths[0]} "
-                                 f"({a.meta.get(key)!r} vs {first.get(key)!r}); "
-                                 "only runs of the same scene and integrator can be merged")
-        if a.s.shape != accs[0].s.shape:
-            raise ValueError(f"{p}: image size {a.s.shape[:2]} differs from {paths[0]}")
-    ranges = sorted((a.seed_first, a.seed_last, p) for a, p in zip(accs, paths))
-    for (f1, l1, p1), (f2, l2, p2) in zip(ranges, ranges[1:]):
-        if f2 <= l1:
-            raise ValueError(f"{p1} (seeds {f1}-{l1}) and {p2} (seeds {f2}-{l2}) overlap: "
-                             "their samples are not independent; render with disjoint --seed ranges")
+    for i in range(1, len(accs)):
+        if accs[i].s.shape != accs[0].s.shape:
+            raise ValueError(f"{paths[i]}: image size {accs[i].s.shape[1]}x{accs[i].s.shape[0]}"
+                             f" differs from {paths[0]} ({accs[0].s.shape[1]}x"
+                             f"{accs[0].s.shape[0]})")
+        for j in range(i):
+            problem = accs[j].record.merge_problem(accs[i].record, paths[j], paths[i])
+            if problem:
+                raise ValueError(problem)
     out = accs[0]
     for a in accs[1:]:
         out = out.merge(a)
-    return out, {k: first[k] for k in ("scene", "integrator", "variant", "defines") if k in first}
+    return out

@@ -18,6 +18,12 @@ from typing import Any
 #: fields that decide the expected image (runs that agree on them may be merged)
 IDENTITY = ("scene_sha1", "integrator", "params", "variant", "defines")
 
+#: typed EXR header attributes of a record (besides ``params`` and ``defines`` as JSON strings
+#: and the whole record as the JSON string ``run_record``, the one read back)
+HEADER_INTS = ("spp", "passes", "seed_first", "seed_last")
+HEADER_FLOATS = ("seconds",)
+HEADER_STRINGS = ("scene", "scene_sha1", "integrator", "variant")
+
 
 def file_sha1(path) -> str:
     return hashlib.sha1(Path(path).read_bytes()).hexdigest()
@@ -85,7 +91,40 @@ class RunRecord:
 
     @classmethod
     def from_json(cls, text: str) -> "RunRecord":
-        return cls.from_dict(json.loads(text))
+        d = json.loads(text)
+        if not isinstance(d, dict):
+            raise ValueError("a run record is a JSON object")
+        return cls.from_dict(d)
+
+    def header(self) -> dict:
+        """EXR header attributes: typed copies of the main fields (for other tools) and the
+        whole record as JSON (``run_record``)."""
+        h: dict = {k: int(getattr(self, k)) for k in HEADER_INTS}
+        h.update({k: float(getattr(self, k)) for k in HEADER_FLOATS})
+        h.update({k: str(getattr(self, k)) for k in HEADER_STRINGS})
+        h["params"] = json.dumps(self.params, sort_keys=True, default=str)
+        h["defines"] = json.dumps(self.defines, sort_keys=True, default=str)
+        h["run_record"] = self.to_json()
+        return h
+
+    @classmethod
+    def from_header(cls, header: dict) -> "RunRecord":
+        """The record of an EXR header: its ``run_record``, or for files written before there
+        was one, the loose ``spp``, ``passes``, ``seed_first``, ``seed_last`` (and
+        ``seconds``, ``scene``, ...) attributes.  Raises ValueError (or KeyError) without."""
+        if "run_record" in header:
+            return cls.from_json(str(header["run_record"]))
+        rec = cls(**{k: int(header[k]) for k in HEADER_INTS},
+                  seconds=float(header.get("seconds", 0.0)),
+                  **{k: str(header[k]) for k in ("scene", "scene_sha1", "integrator", "variant")
+                     if k in header})
+        rec.seed_ranges = [[rec.seed_first, rec.seed_last]]
+        return rec
+
+    def ranges(self) -> list[tuple[int, int]]:
+        """The seed ranges of this run (one, or one per merged run); empty ranges left out."""
+        rs = self.seed_ranges or [[self.seed_first, self.seed_last]]
+        return [(int(f), int(l)) for f, l in rs if l >= f]
 
     # -------------------------------------------------------------------------------------
     def merge_problem(self, other: "RunRecord", name_self: str = "", name_other: str = "") \
@@ -98,16 +137,19 @@ class RunRecord:
                     "only runs of the same scene can be merged")
         for k in ("integrator", "params", "variant", "defines"):
             if getattr(self, k) != getattr(other, k):
-                return (f"{b} has {k} {getattr(other, k)!r} but {a} has {getattr(self, k)!r}; "
-                        "only runs of the same scene and integrator can be merged")
+                return (f"{b} and {a} differ in {k}: {b} has {getattr(other, k)!r}, {a} has "
+                        f"{getattr(self, k)!r}; only runs of the same scene and integrator can "
+                        "be merged")
+        for f1, l1 in self.ranges():
+            for f2, l2 in other.ranges():
+                if f1 <= l2 and f2 <= l1:
+                    return (f"{a} (seeds {f1}-{l1}) and {b} (seeds {f2}-{l2}) overlap: their "
+                            "samples are not independent; render with disjoint --seed ranges")
         return None
 
     def merged(self, other: "RunRecord") -> "RunRecord":
         """The record of this run and ``other`` merged (sample counts and seeds added)."""
-        ranges = sorted([tuple(r) for r in (self.seed_ranges or
-                                            [[self.seed_first, self.seed_last]])] +
-                        [tuple(r) for r in (other.seed_ranges or
-                                            [[other.seed_first, other.seed_last]])])
+        ranges = sorted(self.ranges() + other.ranges())
         return replace(self, spp=self.spp + other.spp, passes=self.passes + other.passes,
                        seconds=self.seconds + other.seconds,
                        seed_first=min(self.seed_first, other.seed_first),
