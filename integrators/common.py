@@ -61,6 +61,3 @@ def channel_mean(spec):
     s = mi.unpolarized_spectrum(spec)
     return dr.mean(s, axis=0)
 
-
-def channel_max(spec):
-    return dr.max(mi.unpolarized_spectrum(spec), axis=0)

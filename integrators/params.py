@@ -130,5 +130,13 @@ def read(plugin: str, specs: Sequence[Param], props) -> dict[str, Any]:
     return out
 
 
-def defaults(specs: Sequence[Param]) -> dict[str, Any]:
-    return {s.name: s.default for s in specs}
+def table(specs: Sequence[Param]) -> str:
+    """The parameter table of a plugin (Markdown), from the specs it validates with: the table in
+    its docstring, ``python -m integrators list --markdown`` and the README's tables."""
+    rows = ["| parameter | type | default | allowed | meaning |", "| --- | --- | --- | --- | --- |"]
+    for s in specs:
+        v = s.default
+        d = "" if v is None else f"`{v:.4g}`" if isinstance(v, float) and not v.is_integer() \
+            else f"`{_fmt(v)}`"
+        rows.append(f"| `{s.name}` | {s.kind} | {d} | {s.allowed()} | {s.doc} |")
+    return "\n".join(rows)

@@ -19,7 +19,7 @@ from typing import Sequence
 
 import mitsuba as mi
 
-from .params import Param
+from .params import Param, table
 
 
 @dataclass
@@ -48,6 +48,10 @@ def plugin(name: str, kind: str):
         _PLUGINS[name] = Plugin(name, kind, template, tuple(getattr(template, "PARAMS", ())),
                                 doc[0] if doc else "")
         template.NAME = name
+        if _PLUGINS[name].params:   # the parameter table, from the specs it validates with
+            template.__doc__ = (template.__doc__ or "").rstrip() + \
+                "\n\n    Parameters:\n\n" + "\n".join(
+                    "    " + row for row in table(_PLUGINS[name].params).splitlines()) + "\n"
         # a plugin declared after install() (a user's own) is registered at once
         if mi.variant() is not None and mi.variant() in _REGISTERED:
             _register(_PLUGINS[name], mi.variant())

@@ -54,14 +54,13 @@ def test_closed_sphere_geometric_series(hemisphere, max_depth):
 
 
 def test_negative_control_rr_without_compensation(monkeypatch):
-    from integrators.sampling import roulette as base
-    from integrators.plugins import bsdf_path
-    orig = base.russian_roulette
+    from integrators.sampling import roulette
+    orig = roulette.roulette
 
-    def biased(beta, eta, depth, rr_depth, u, active):
-        _, active2 = orig(beta, eta, depth, rr_depth, u, active)
+    def biased(mode, rr_depth, rr_prob, beta, eta, depth, u, active):
+        _, active2 = orig(mode, rr_depth, rr_prob, beta, eta, depth, u, active)
         return beta, active2  # survivors not divided by their survival probability
 
-    monkeypatch.setattr(bsdf_path, "russian_roulette", biased)
+    monkeypatch.setattr(roulette, "roulette", biased)
     r = run(closed_sphere_scene(0.5, 1.0), {"type": "bsdf_path", "rr_depth": 1}, 2.0)
     assert not r.passed, r

@@ -49,12 +49,12 @@ def test_closed_sphere_other_settings(extra):
 
 
 def test_negative_control_rr_without_compensation(monkeypatch):
-    from integrators.plugins import nee_path
-    orig = nee_path.roulette
+    from integrators.sampling import roulette
+    orig = roulette.roulette
 
     def biased(mode, rr_depth, rr_prob, beta, eta, depth, u, active):
         return beta, orig(mode, rr_depth, rr_prob, beta, eta, depth, u, active)[1]
-    monkeypatch.setattr(nee_path, "roulette", biased)
+    monkeypatch.setattr(roulette, "roulette", biased)
     r = closed_check({"type": "nee_path", "rr": "fixed", "rr_depth": 1})
     assert not r.passed, r
 
@@ -105,7 +105,7 @@ def test_negative_control_max_depth_7_vs_8(cornell, mitsuba_path_images):
 
 
 def test_negative_control_split_weight(monkeypatch):
-    from integrators.plugins import nee_path
-    monkeypatch.setattr(nee_path, "split_weight", lambda k: 1.0 / (k - 1))
+    from integrators.sampling import roulette
+    monkeypatch.setattr(roulette, "split_weight", lambda k: 1.0 / (k - 1))
     r = closed_check({"type": "nee_path", "split": 4})
     assert not r.passed, r

@@ -57,6 +57,8 @@ def _parser() -> argparse.ArgumentParser:
     m.add_argument("-o", "--output", required=True, help="merged EXR")
     m.add_argument("--debug", action="store_true", help="show Python tracebacks")
     ls = sub.add_parser("list", help="list plugins and their parameters")
+    ls.add_argument("--markdown", action="store_true",
+                    help="parameter tables in Markdown (as in the README)")
     ls.add_argument("--debug", action="store_true", help=argparse.SUPPRESS)
     return p
 
@@ -244,7 +246,11 @@ def cmd_merge(args) -> int:
 
 def cmd_list(args) -> int:
     from .. import registry
+    from ..params import table
     for name, p in sorted(registry.plugins().items()):
+        if args.markdown:
+            print(f"**`{name}`** ({p.kind}): {p.summary}\n\n{table(p.params)}\n")
+            continue
         print(f"{name} ({p.kind}): {p.summary}")
         for s in p.params:
             print(f"    {s.describe()}")

@@ -22,13 +22,12 @@ from __future__ import annotations
 import drjit as dr
 import mitsuba as mi
 
-from ..sampling.roulette import RR_DEPTH, russian_roulette
-from .base import MAX_DEPTH, IntegratorTemplate
-from ..common import bsdf_at, depth_limit, emitted, is_jit, lnot
+from ..common import bsdf_at, depth_limit, emitted
 from ..params import Param
 from ..registry import plugin
-
-HEMISPHERE = ("uniform", "cosine", "bsdf")
+from ..sampling.roulette import RR_DEPTH, Roulette
+from ..sampling.techniques import HEMISPHERE, hemisphere_sample
+from .base import MAX_DEPTH, IntegratorTemplate
 
 
 @plugin("bsdf_path", "integrator")
@@ -41,36 +40,8 @@ class BSDFPath(IntegratorTemplate):
               doc="Direction sampling at each vertex."),
     )
 
-    def sample_direction(self, ctx, bsdf, si, sampler, active):
-        """One direction at ``si``: returns (wo local, f cos / pdf, eta)."""
-        s1, s2 = sampler.next_1d(active), sampler.next_2d(active)
-        if bsdf is None:  # scalar variants, no surface
-            return mi.Vector3f(0, 0, 1), mi.Spectrum(0.0), mi.Float(1.0)
-        if self.hemisphere == "bsdf":
-            bs, weight = bsdf.sample(ctx, si, s1, s2, active)
-            return bs.wo, weight, bs.eta
-        flags = bsdf.flags()
-        use_bsdf = mi.has_flag(flags, mi.BSDFFlags.Delta)
-        sphere = mi.has_flag(flags, mi.BSDFFlags.Transmission)
-        if self.hemisphere == "uniform":
-            wo = mi.warp.square_to_uniform_hemisphere(s2)
-            pdf = mi.Float(dr.inv_two_pi)
-        else:
-            wo = mi.warp.square_to_cosine_hemisphere(s2)
-            pdf = wo.z * dr.inv_pi
-        side = dr.select(mi.Frame3f.cos_theta(si.wi) < 0, -1.0, 1.0)
-        flip = sphere & (s1 < 0.5)
-        wo.z = wo.z * dr.select(flip, -side, side)
-        pdf = pdf * dr.select(sphere, 0.5, 1.0)
-        value = bsdf.eval(ctx, si, wo, active & lnot(use_bsdf))
-        weight = dr.select(pdf > 0, value / dr.select(pdf > 0, pdf, 1.0), 0.0)
-        eta = mi.Float(1.0)
-        if is_jit() or use_bsdf:
-            bs, w_b = bsdf.sample(ctx, si, s1, s2, active & use_bsdf)
-            wo = dr.select(use_bsdf, bs.wo, wo)
-            weight = dr.select(use_bsdf, w_b, weight)
-            eta = dr.select(use_bsdf, bs.eta, eta)
-        return wo, weight, eta
+    def setup(self):
+        self.russian_roulette = Roulette("throughput", self.rr_depth)
 
     @dr.syntax
     def sample(self, scene, sampler, ray, medium=None, active=True):
@@ -89,12 +60,12 @@ class BSDFPath(IntegratorTemplate):
             L += beta * emitted(scene, si, active)
             active &= si.is_valid() & (depth + 1 < max_depth)
             bsdf = bsdf_at(si, ray, active)
-            wo, weight, eta_v = self.sample_direction(ctx, bsdf, si, sampler, active)
+            s1, s2 = sampler.next_1d(active), sampler.next_2d(active)
+            wo, weight, eta_v = hemisphere_sample(self.hemisphere, ctx, bsdf, si, s1, s2, active)
             beta *= weight
             eta *= eta_v
             depth += 1
-            beta, active = russian_roulette(beta, eta, depth, self.rr_depth,
-                                            sampler.next_1d(active), active)
+            beta, active = self.russian_roulette(beta, eta, depth, sampler.next_1d(active), active)
             ray = si.spawn_ray(si.to_world(wo))
             si = scene.ray_intersect(ray, active)
 

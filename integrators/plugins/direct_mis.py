@@ -22,11 +22,12 @@ from __future__ import annotations
 import drjit as dr
 import mitsuba as mi
 
-from ..sampling import light_selection, mis, vertex as nee
-from .base import IntegratorTemplate
-from ..common import bsdf_at, bsdf_flags, emitted, is_jit
-from ..params import Param
+from ..common import bsdf_at, emitted, is_jit
+from ..params import Param, ParameterError
 from ..registry import plugin
+from ..sampling import light_selection, mis
+from ..sampling.vertex import VertexEstimator
+from .base import IntegratorTemplate
 
 
 @plugin("direct_mis", "integrator")
@@ -41,8 +42,12 @@ class DirectMIS(IntegratorTemplate):
     )
 
     def setup(self):
+        if self.light_samples == 0 and self.bsdf_samples == 0:
+            raise ParameterError("direct_mis: parameters 'light_samples' = 0 and 'bsdf_samples' "
+                                 "= 0 estimate nothing; allowed: at least one of them >= 1")
         self.heur = mis.Heuristic.from_params(self.params)
-        self.selection = light_selection.SelectionCache(self.light_selection)
+        self.lights = light_selection.SelectionCache(self.light_selection)
+        self.vertex = VertexEstimator(self.heur, self.light_samples, self.bsdf_samples)
 
     def sample(self, scene, sampler, ray, medium=None, active=True):
         ctx = mi.BSDFContext()
@@ -51,48 +56,38 @@ class DirectMIS(IntegratorTemplate):
         L = emitted(scene, si, active)
         valid = si.is_valid()
         active = active & valid
-        sel = self.selection(scene)
+        sel = self.lights(scene)
         bsdf = bsdf_at(si, ray, active)
-        n_l = self.light_samples if sel.count > 0 else 0
-        # a surface without a smooth lobe (a mirror) gets nothing from light samples
-        smooth = mi.has_flag(bsdf_flags(bsdf), mi.BSDFFlags.Smooth)
-        if n_l == 1 and self.bsdf_samples == 1 and bsdf is not None:
-            # one sample of each: evaluate the BSDF for the light sample and draw the BSDF
-            # sample in one call (as Mitsuba's direct and path do)
-            ds, em_weight, act_l, norm = nee.sample_light(scene, sel, sampler, si,
-                                                          active & smooth)
-            s1, s2 = sampler.next_1d(active), sampler.next_2d(active)
-            f_l, pdf_l, bs, weight = bsdf.eval_pdf_sample(ctx, si, si.to_local(ds.d), s1, s2,
-                                                          active)
-            w_l = nee.light_weight(self.heur, 1, 1, ds, pdf_l)
-            L += dr.select(act_l, f_l * em_weight * w_l, 0.0)
-            L += self.bsdf_hit(scene, sel, si, bs, weight, n_l, active, norm)
+        vx, n_b = self.vertex, self.bsdf_samples
+        if n_b == 0:
+            if sel.count > 0 and self.light_samples > 0:
+                L += vx.light_estimate(scene, sel, sampler, ctx, si, bsdf, active)
             return L, valid, []
-        if n_l > 0:
-            L += nee.light_estimate(scene, sel, self.heur, sampler, ctx, si, bsdf, n_l,
-                                    self.bsdf_samples, active & smooth)
-        if self.bsdf_samples > 0:
-            L += self.bsdf_estimate(scene, sel, sampler, ctx, si, bsdf, n_l, active)
-        return L, valid, []
+        # the light samples and the first BSDF sample, then the other N_b - 1 BSDF samples
+        L_l, bs, weight, norm = vx.direct(scene, sel, sampler, ctx, si, bsdf, active)
+        L_b = self.bsdf_hit(scene, sel, si, bs, weight, active, norm)
+        if n_b > 1:
+            L_b += self.more_bsdf_samples(scene, sel, sampler, ctx, si, bsdf, active)
+        return L + L_l + L_b / n_b, valid, []
 
-    def bsdf_hit(self, scene, sel, si, bs, weight, n_l, active, norm=None):
+    def bsdf_hit(self, scene, sel, si, bs, weight, active, norm=None):
         """Emission found by one BSDF sample, MIS-weighted (not divided by N_b)."""
         act = active & dr.any(weight != 0)
         si_l = scene.ray_intersect(si.spawn_ray(si.to_world(bs.wo)), act)
         delta = mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta)
-        w = nee.emission_weight(self.heur, sel, n_l, self.bsdf_samples, si, si_l, bs.pdf,
-                                delta, act, norm)
-        return dr.select(act, weight * emitted(scene, si_l, act) * w, 0.0)
+        L_e = self.vertex.emission(scene, sel, si, si_l, [self.bsdf_samples * bs.pdf], delta,
+                                   act, norm)
+        return dr.select(act, weight * L_e, 0.0)
 
     @dr.syntax
-    def bsdf_estimate(self, scene, sel, sampler, ctx, si, bsdf, n_l, active):
-        n_b = self.bsdf_samples
+    def more_bsdf_samples(self, scene, sel, sampler, ctx, si, bsdf, active):
+        """The sum over BSDF samples 2..N_b of their weighted emission."""
         L = mi.Spectrum(0.0)
-        j = mi.UInt32(0)
-        while dr.hint(j < n_b, label="direct_mis BSDF samples"):
+        j = mi.UInt32(1)
+        while dr.hint(j < self.bsdf_samples, label="direct_mis BSDF samples"):
             s1, s2 = sampler.next_1d(active), sampler.next_2d(active)
             if is_jit() or active:
                 bs, weight = bsdf.sample(ctx, si, s1, s2, active)
-                L += self.bsdf_hit(scene, sel, si, bs, weight, n_l, active)
+                L += self.bsdf_hit(scene, sel, si, bs, weight, active)
             j += 1
-        return L / n_b
+        return L

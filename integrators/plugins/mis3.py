@@ -7,12 +7,11 @@ At every vertex one technique I is chosen with probability p(I):
 3. **light sampling**: a light by ``light_selection``, a point on it (area form converted to
    solid angle), a shadow ray.
 
-**Component rule.** Any Mitsuba BSDF is split by its component flags through
-``BSDFContext.type_mask``: components with ``DiffuseReflection``/``DiffuseTransmission`` form
-the cosine technique; components with ``Glossy*`` or ``Delta*`` flags form the glossy technique.
-p_1(omega) and p_2(omega) are the BSDF's pdfs with only those components enabled (for ``phong``,
-``plastic``, ``roughplastic``: the lobe's own pdf), p_3(omega) = p(light) p_light(omega), zero
-for a direction that hits no light.
+**Component rule** (:mod:`integrators.sampling.techniques`): any Mitsuba BSDF is split by its
+component flags; p_1(omega) and p_2(omega) are the BSDF's pdfs with only the diffuse or only the
+glossy and delta components enabled, p_3(omega) = p(light) p_light(omega), zero for a direction
+that hits no light.  Light samples, emission weights and roulette are the shared per-vertex
+estimator's (:mod:`integrators.sampling.vertex`) with one-sample densities q_I = p(I) p_I.
 
 **Estimator.** The integrand f L cos is split into the emitted part (f L_e cos) and the
 reflected part (f L_r cos).  With q_k = p(k) p_k(omega):
@@ -44,16 +43,14 @@ import dataclasses
 import drjit as dr
 import mitsuba as mi
 
-from ..sampling import light_selection, mis
-from ..sampling.roulette import RR_PARAMS, roulette
-from .base import MAX_DEPTH, IntegratorTemplate
-from ..common import any_flag, bsdf_at, bsdf_flags, channel_mean, depth_limit, emitted, is_jit, lnot
+from ..common import any_flag, bsdf_at, bsdf_flags, channel_mean, depth_limit, emitted, is_jit, \
+    lnot, safe_div
 from ..params import Param, ParameterError
 from ..registry import plugin
-
-DIFFUSE = mi.BSDFFlags.DiffuseReflection | mi.BSDFFlags.DiffuseTransmission
-GLOSSY = (mi.BSDFFlags.GlossyReflection | mi.BSDFFlags.GlossyTransmission |
-          mi.BSDFFlags.DeltaReflection | mi.BSDFFlags.DeltaTransmission)
+from ..sampling import light_selection, mis, roulette
+from ..sampling.techniques import DIFFUSE, GLOSSY, lobe_contexts, lobe_densities
+from ..sampling.vertex import VertexEstimator
+from .base import MAX_DEPTH, IntegratorTemplate
 
 
 def _prob(name, default, doc):
@@ -72,7 +69,7 @@ class MIS3(IntegratorTemplate):
               doc="Technique probabilities: the fixed p-vector or adapted per vertex."),
         dataclasses.replace(mis.PARAMS[0], default="balance"), *mis.PARAMS[1:],
         light_selection.PARAM,
-        MAX_DEPTH, *RR_PARAMS,
+        MAX_DEPTH, *roulette.RR_PARAMS,
     )
 
     def setup(self):
@@ -82,11 +79,12 @@ class MIS3(IntegratorTemplate):
                                  "probabilities in [0, 1] with a positive sum")
         self.p_fixed = (self.p_cosine / total, self.p_glossy / total, self.p_light / total)
         self.heur = mis.Heuristic.from_params(self.params)
-        self.selection = light_selection.SelectionCache(self.light_selection)
+        self.lights = light_selection.SelectionCache(self.light_selection)
+        self.vertex = VertexEstimator(self.heur, 1, 1, roulette.Roulette.from_params(self.params))
 
     def technique_probs(self, bsdf, si, has_lights: bool, active):
         """(p1, p2, p3) at this vertex, summing to one (zero where nothing is there)."""
-        if self.selection_mode_fixed:
+        if self.params["selection"] == "fixed":
             p1, p2, p3 = (mi.Float(p) for p in self.p_fixed)
             return p1, p2, (p3 if has_lights else p3 * 0.0)
         flags = bsdf_flags(bsdf)
@@ -100,22 +98,14 @@ class MIS3(IntegratorTemplate):
         r1 = dr.select(has_d, self.p_cosine * a_d, 0.0)
         r2 = dr.select(has_g, self.p_glossy * dr.select(has_d, 1.0 - a_d, 1.0), 0.0)
         r3 = dr.select(smooth & has_lights, self.p_light, 0.0) if has_lights else mi.Float(0.0)
-        total = r1 + r2 + r3
-        inv = dr.select(total > 0, dr.rcp(dr.select(total > 0, total, 1.0)), 0.0)
+        inv = safe_div(1.0, r1 + r2 + r3)
         return r1 * inv, r2 * inv, r3 * inv
-
-    @property
-    def selection_mode_fixed(self):
-        return self.params["selection"] == "fixed"
 
     @dr.syntax
     def sample(self, scene, sampler, ray, medium=None, active=True):
-        ctx = mi.BSDFContext()
-        ctx_d = mi.BSDFContext()
-        ctx_d.type_mask = int(DIFFUSE)
-        ctx_g = mi.BSDFContext()
-        ctx_g.type_mask = int(GLOSSY)
-        sel = self.selection(scene)
+        ctx, ctx_d, ctx_g = lobe_contexts()
+        vx = self.vertex
+        sel = self.lights(scene)
         has_lights = sel.count > 0
         max_depth = depth_limit(self.max_depth)
         ray = mi.Ray3f(ray)
@@ -131,57 +121,51 @@ class MIS3(IntegratorTemplate):
         while dr.hint(active, label="mis3"):
             bsdf = bsdf_at(si, ray, active)
             p1, p2, p3 = self.technique_probs(bsdf, si, has_lights, active)
-            u, s1, s2, s_l = (sampler.next_1d(active), sampler.next_1d(active),
-                              sampler.next_2d(active), sampler.next_1d(active))
+            u = sampler.next_1d(active)
             use_l = (p3 > 0) & (u >= p1 + p2)
             use_1 = lnot(use_l) & (u < p1)
-            use_2 = lnot(use_l) & lnot(use_1)
 
             # ---- technique 3: light sampling (ends the path) ----
             norm = None   # the light selection's normaliser at si, reused by technique 1/2
             if is_jit() or (active and use_l and has_lights):
-                act_l = active & use_l
-                ds, em_w, norm = sel.sample_direction(si, s_l, s2, act_l)
-                act_l &= dr.any(em_w != 0)
-                act_l &= lnot(scene.ray_test(si.spawn_ray_to(ds.p), act_l))
-                wo = si.to_local(ds.d)
-                f = bsdf.eval(ctx, si, wo, act_l)
-                q = [p3 * ds.pdf, p1 * bsdf.pdf(ctx_d, si, wo, act_l),
-                     p2 * bsdf.pdf(ctx_g, si, wo, act_l)]
-                w = dr.select(ds.delta, 1.0, self.heur.weight(0, q))
-                L += dr.select(act_l, beta * f * em_w * w / dr.select(p3 > 0, p3, 1.0), 0.0)
+                ls = vx.light_sample(scene, sel, sampler, si, active & use_l)
+                norm = ls.norm
+                wo = si.to_local(ls.ds.d)
+                f = bsdf.eval(ctx, si, wo, ls.visible)
+                q_b = lobe_densities(bsdf, ctx_d, ctx_g, si, wo, p1, p2, ls.visible)
+                L += beta * safe_div(vx.light_term(ls, f, q_b, light_scale=p3), p3)
+            else:
+                sampler.next_1d()
+                sampler.next_2d()
 
             # ---- techniques 1 and 2: a lobe of the BSDF (continues the path) ----
+            s1, s2 = sampler.next_1d(active), sampler.next_2d(active)
             act_b = active & lnot(use_l)
             if is_jit() or act_b:
                 bs_d, _ = bsdf.sample(ctx_d, si, s1, s2, act_b & use_1)
-                bs_g, w_g = bsdf.sample(ctx_g, si, s1, s2, act_b & use_2)
+                bs_g, w_g = bsdf.sample(ctx_g, si, s1, s2, act_b & lnot(use_1))
                 wo = dr.select(use_1, bs_d.wo, bs_g.wo)
                 delta = lnot(use_1) & mi.has_flag(bs_g.sampled_type, mi.BSDFFlags.Delta)
                 act_b &= dr.select(use_1, bs_d.pdf, bs_g.pdf) > 0
                 smooth_b = act_b & lnot(delta)
                 f = bsdf.eval(ctx, si, wo, smooth_b)
-                q1 = p1 * bsdf.pdf(ctx_d, si, wo, smooth_b)
-                q2 = p2 * bsdf.pdf(ctx_g, si, wo, smooth_b)
-                q_i = dr.select(use_1, q1, q2)           # p(I) p_I(omega)
+                q1, q2 = lobe_densities(bsdf, ctx_d, ctx_g, si, wo, p1, p2, smooth_b)
                 # f cos / (p(I) p_I): delta lobes give the BSDF's own weight / p(2)
-                ratio = dr.select(delta, w_g / dr.select(p2 > 0, p2, 1.0),
-                                  dr.select(q_i > 0, f / dr.select(q_i > 0, q_i, 1.0), 0.0))
+                ratio = dr.select(delta, safe_div(w_g, p2),
+                                  safe_div(f, dr.select(use_1, q1, q2)))
                 w_ind = self.heur.weights([q1, q2])
                 w_ind = dr.select(delta, 1.0, dr.select(use_1, w_ind[0], w_ind[1]))
                 ray_b = si.spawn_ray(si.to_world(wo))
                 si_b = scene.ray_intersect(ray_b, act_b)
-                q3 = p3 * sel.pdf_direction(si, si_b, smooth_b, norm)
-                w_dir = self.heur.weights([q3, q1, q2])   # light first: partition priority
-                w_dir = dr.select(delta, 1.0, dr.select(use_1, w_dir[1], w_dir[2]))
-                L += dr.select(act_b, beta * ratio * w_dir * emitted(scene, si_b, act_b), 0.0)
+                L_e = vx.emission(scene, sel, si, si_b, [q1, q2], delta, act_b, norm,
+                                  index=use_1, light_scale=p3)
+                L += dr.select(act_b, beta * ratio * L_e, 0.0)
                 beta = dr.select(act_b, beta * ratio * w_ind, 0.0)
                 eta *= dr.select(use_1, bs_d.eta, bs_g.eta)
                 ray = ray_b
                 si = si_b
             depth += 1
             active = act_b
-            beta, active = roulette(self.rr, self.rr_depth, self.rr_prob, beta, eta, depth,
-                                    sampler.next_1d(active), active)
+            beta, active = vx.roulette(beta, eta, depth, sampler, active)
             active &= si.is_valid() & (depth + 1 < max_depth)
         return L, valid, []

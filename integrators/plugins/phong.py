@@ -29,7 +29,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ..common import channel_mean
+from ..common import channel_mean, safe_div
 from ..params import Param, ParameterError, read
 from ..registry import plugin
 
@@ -76,8 +76,7 @@ class Phong:
         """Probability of picking the glossy lobe when both are enabled (albedo ratio)."""
         wd = channel_mean(self.kd.eval(si, active))
         wg = channel_mean(self.ks.eval(si, active))
-        total = wd + wg
-        return dr.select(total > 0, wg / dr.select(total > 0, total, 1.0), 0.0)
+        return safe_div(wg, wd + wg)
 
     def _lobes(self, si, wo):
         """(cos theta_o, cos^e(alpha) with alpha measured from the mirror direction)."""

@@ -35,7 +35,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ..common import channel_mean, is_jit
+from ..common import channel_mean, is_jit, safe_div
 from ..params import Param
 
 MODES = ("uniform", "power", "adaptive")
@@ -390,7 +390,7 @@ class AdaptiveLightSelection(LightSelection):
         while dr.hint(j < self.count, label="adaptive light selection"):
             e = self._estimate(si, j)
             total += e
-            p = dr.select(total > 0, e / dr.select(total > 0, total, 1.0), 0.0)
+            p = safe_div(e, total)
             take = u < p
             idx = dr.select(take, j, idx)
             e_idx = dr.select(take, e, e_idx)

@@ -37,6 +37,7 @@ from typing import Sequence
 import drjit as dr
 import mitsuba as mi
 
+from ..common import safe_div
 from ..params import Param
 
 HEURISTICS = ("balance", "power", "cutoff", "maximum", "average", "partition")
@@ -75,7 +76,7 @@ class Heuristic:
         for x in q[1:]:
             qmax = dr.maximum(qmax, x)
         has = qmax > 0
-        inv = dr.select(has, dr.rcp(dr.select(has, qmax, 1.0)), 0.0)
+        inv = safe_div(1.0, qmax)
         # ratio to the largest density, in [0, 1]; exactly 1 for the maximum (also for +inf)
         r = [dr.select(x == qmax, dr.select(has, 1.0, 0.0), x * inv) for x in q]
         zero = mi.Float(0.0)
@@ -98,7 +99,7 @@ class Heuristic:
         total = zero
         for x in s:
             total = total + x
-        inv_total = dr.select(total > 0, dr.rcp(dr.select(total > 0, total, 1.0)), 0.0)
+        inv_total = safe_div(1.0, total)
         return [x * inv_total for x in s]
 
     def weight(self, i: int, q: Sequence):

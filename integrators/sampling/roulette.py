@@ -1,4 +1,12 @@
-"""Russian roulette (and the weight of splitting): ending or multiplying paths without bias."""
+r"""Russian roulette and splitting: ending or multiplying paths without bias.
+
+* **Russian roulette** after a vertex: the path survives with probability q and its throughput is
+  divided by q, so E[beta'] = beta.  ``rr`` = ``none`` | ``fixed`` (q = 1 - ``rr_prob``) |
+  ``throughput`` (q = min(max(beta) eta^2, 0.95), Mitsuba's ``path`` and pbrt), from path depth
+  ``rr_depth`` on.
+* **Splitting** into k continuations, each weighted :func:`split_weight` = 1/k: their average is
+  an unbiased estimate of one continuation.
+"""
 from __future__ import annotations
 
 import drjit as dr
@@ -37,6 +45,23 @@ def roulette(mode: str, rr_depth: int, rr_prob: float, beta, eta, depth, u, acti
     return beta, active & (lnot(rr_active) | (u < q))
 
 
-def russian_roulette(beta, eta, depth, rr_depth, u, active):
-    """Throughput-based Russian roulette (Mitsuba's ``path``, pbrt); returns (beta, active)."""
-    return roulette("throughput", rr_depth, 0.0, beta, eta, depth, u, active)
+class Roulette:
+    """A path's Russian roulette: ``Roulette(mode, rr_depth, rr_prob)(beta, eta, depth, u,
+    active)`` -> (beta, active)."""
+
+    def __init__(self, mode: str = "throughput", rr_depth: int = 5, rr_prob: float = 0.5):
+        if mode not in RR_MODES:
+            raise ValueError(f"rr = {mode!r}; allowed: one of {', '.join(RR_MODES)}")
+        self.mode, self.rr_depth, self.rr_prob = mode, int(rr_depth), float(rr_prob)
+
+    @classmethod
+    def from_params(cls, p: dict) -> "Roulette":
+        return cls(p.get("rr", "throughput"), p.get("rr_depth", 5), p.get("rr_prob", 0.5))
+
+    def __call__(self, beta, eta, depth, u, active):
+        return roulette(self.mode, self.rr_depth, self.rr_prob, beta, eta, depth, u, active)
+
+
+def split_weight(k: int) -> float:
+    """Weight of each of the k continuations of a split: their average is unbiased."""
+    return 1.0 / k
