@@ -80,3 +80,24 @@ def test_scalar_variant_same_weights():
                 assert np.allclose([float(x) for x in w], [r[lane] for r in ref[n]]), n
     finally:
         integrators.set_variant("llvm_ad_rgb")
+
+
+# ---- property test over the parameter space (hypothesis: fixed seed, bounded examples) ----
+from hypothesis import given, settings, strategies as st  # noqa: E402
+
+_density = st.one_of(st.just(0.0), st.floats(1e-30, 1e30, allow_nan=False))
+
+
+@settings(max_examples=150, deadline=None, derandomize=True)
+@given(name=st.sampled_from(HEURISTICS), beta=st.floats(0.05, 10.0), alpha=st.floats(0.0, 1.0),
+       q=st.lists(st.lists(_density, min_size=2, max_size=4), min_size=1, max_size=8))
+def test_weights_sum_to_one_for_any_parameters(name, beta, alpha, q):
+    """(a) and (b) for every heuristic at any beta > 0 and alpha in [0, 1], edges included."""
+    n_tech = len(q[0])
+    q = np.array([row[:n_tech] + [0.0] * (n_tech - len(row)) for row in q], dtype=np.float32).T
+    w = np.array([np.array(x) for x in
+                  Heuristic(name, beta=beta, alpha=alpha).weights([mi.Float(r) for r in q])])
+    assert np.all(np.isfinite(w)) and np.all(w >= 0)
+    some = q.max(0) > 0
+    assert np.allclose(w[:, some].sum(0), 1.0, atol=1e-5)
+    assert np.all(w[q == 0] == 0)
