@@ -32,7 +32,8 @@ Method:
   count, cache hits; not used for the timings);
 * ``repeats`` rounds, each rendering every configuration once in a fixed round-robin order
   (A B C D E A B C D E ...), ``seed`` = round index, each render timed with
-  ``time.perf_counter`` around ``mi.render(...); dr.eval(img); dr.sync_thread()``;
+  ``time.perf_counter`` around ``mi.render(...); dr.eval(img); dr.sync_thread()`` (the timing
+  core of every benchmark, :mod:`benchmarks.timing`);
 * samples/s = width * height * spp / seconds; the median over rounds per configuration;
 * ratios ``ours / built-in`` of samples/s (> 1: ours is faster): the headline value is the
   median of the per-round ratios (each round's pair ran seconds apart, which cancels slow drift
@@ -44,26 +45,26 @@ Method:
 ``bsdf_path`` has no light sampling, so it is not the same estimator as ``path`` (different
 noise, different number of rays per path): that ratio compares cost per sample only.
 
-Results: a JSON file (``--out``) and a Markdown file next to it (same name, ``.md``).  A merged
-(multi-scene) JSON file holds ``"scenes"``: one single-scene result per scene, each in the
-single-scene format.
+Results: a JSON file (``--out``) and a Markdown file next to it (same name, ``.md``), both
+written atomically; both record the command that ran (``"command"``, the "Command:" line).
+A merged (multi-scene) JSON file holds ``"scenes"``: one single-scene result per scene, each in
+the single-scene format.
 """
 from __future__ import annotations
 
 import argparse
-import datetime as _dt
 import json
-import os
-import platform
 import shlex
 import statistics
 import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parent.parent
+from . import provenance, timing
+
+PROG = "python -m benchmarks.speed"
+CHILD = "python -m benchmarks.speed"      # how a scene's subprocess is started
 
 # name, kind ('ours' | 'builtin'), integrator dict (max_depth filled in later), description
 CONFIGS = (
@@ -101,7 +102,7 @@ DEFAULT_SCENES = (
 
 
 def parse_args(argv=None):
-    ap = argparse.ArgumentParser(prog="python -m benchmarks.speed", description=__doc__.split("\n")[0])
+    ap = argparse.ArgumentParser(prog=provenance.invoked_as(PROG), description=__doc__.split("\n")[0])
     ap.add_argument("--scene", action="append", default=None,
                     help="scene file (repeatable); default: every scene of DEFAULT_SCENES, one "
                          "subprocess each, results merged")
@@ -139,27 +140,6 @@ def _configs_for(scene: str, requested) -> tuple:
     return tuple(name for name in CONFIG_NAMES if name in want)
 
 
-def _git_state():
-    try:
-        head = subprocess.run(["git", "rev-parse", "HEAD"], cwd=REPO, capture_output=True,
-                              text=True, check=True).stdout.strip()
-        dirty = subprocess.run(["git", "status", "--porcelain"], cwd=REPO, capture_output=True,
-                               text=True, check=True).stdout.strip() != ""
-        return {"commit": head, "dirty": dirty}
-    except (OSError, subprocess.CalledProcessError):
-        return None
-
-
-def _cpu_model():
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or None
-
-
 def _kernel_stats(dr, history):
     """Summary of the JIT kernels of one render (from ``dr.kernel_history()``)."""
     ks = [h for h in history if h.get("type") == dr.KernelType.JIT]
@@ -173,10 +153,6 @@ def _kernel_stats(dr, history):
         "main_kernel_ops": int(main.get("operation_count", 0)),
         "main_kernel_size": int(main.get("size", 0)),
     }
-
-
-def _command() -> str:
-    return "python -m benchmarks.speed" + (" " + shlex.join(sys.argv[1:]) if sys.argv[1:] else "")
 
 
 def run(args):
@@ -206,50 +182,48 @@ def run(args):
             d["max_depth"] = args.max_depth
         integs[name] = (mi.load_dict(d), d)
 
-    def render(integ, seed):
-        t0 = time.perf_counter()
-        img = mi.render(scene, integrator=integ, spp=args.spp, seed=seed)
-        dr.eval(img)
-        dr.sync_thread()
-        return time.perf_counter() - t0, img
+    def render(name, seed):
+        return timing.timed_render(scene, integs[name][0], args.spp, seed)
 
-    t_start = time.perf_counter()
-    warmup, diag, means = {}, {}, {}
-    for name, (integ, _) in integs.items():
-        warmup[name], _ = render(integ, 10_000)          # compile (or load from the kernel cache)
+    order = list(integs)
+    t_start = timing.clock()
+    # warm-up: compile (or load from the kernel cache), one render per configuration
+    warm = timing.round_robin(render, order, rounds=0, warmup=1, seed=lambda rnd, name: 10_000)
+    diag, means = {}, {}
     history_was = dr.flag(dr.JitFlag.KernelHistory)
     dr.set_flag(dr.JitFlag.KernelHistory, True)
     try:
-        for name, (integ, _) in integs.items():
+        for name in order:
             dr.kernel_history()                          # clear
-            wall, _ = render(integ, 20_000)
+            _, wall = render(name, 20_000)
             diag[name] = {"wall_ms": wall * 1e3, **_kernel_stats(dr, dr.kernel_history())}
     finally:
         dr.set_flag(dr.JitFlag.KernelHistory, history_was)
 
-    times = {name: [] for name in integs}
-    for k in range(args.repeats):
-        for name, (integ, _) in integs.items():
-            t, img = render(integ, k)
-            times[name].append(t)
-            if k == args.repeats - 1:
-                arr = np.asarray(img, dtype=np.float64)
-                means[name] = [float(v) for v in arr.reshape(-1, arr.shape[-1]).mean(0)[:3]]
-            del img
-    total = time.perf_counter() - t_start
+    def image_mean(name, rnd, warmup, img, dt):
+        if rnd == args.repeats - 1:
+            arr = np.asarray(img, dtype=np.float64)
+            means[name] = [float(v) for v in arr.reshape(-1, arr.shape[-1]).mean(0)[:3]]
+
+    # timed rounds, fixed round-robin order, seed = round
+    times = timing.round_robin(render, order, rounds=args.repeats, warmup=0,
+                               on_render=image_mean).timed
+    warmup = {name: warm.warmup[name][0] for name in order}
+    total = timing.clock() - t_start
 
     configs = {}
     for name, kind, _, desc in CONF:
         sps = [samples / t for t in times[name]]
+        st = timing.stats(times[name])
         configs[name] = {
             "kind": kind,
             "description": desc,
             "integrator": integs[name][1],
             "median_samples_per_s": statistics.median(sps),
             "best_samples_per_s": max(sps),
-            "median_seconds": statistics.median(times[name]),
-            "min_seconds": min(times[name]),
-            "max_seconds": max(times[name]),
+            "median_seconds": st["median"],
+            "min_seconds": st["min"],
+            "max_seconds": st["max"],
             "seconds": times[name],
             "samples_per_s": sps,
             "warmup_seconds": warmup[name],
@@ -275,18 +249,10 @@ def run(args):
 
     return {
         "benchmark": "benchmarks.speed",
-        "command": _command(),
-        "date_utc": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
-        "git": _git_state(),
-        "machine": {
-            "platform": platform.platform(),
-            "machine": platform.machine(),
-            "cpu_model": _cpu_model(),
-            "cpu_count": os.cpu_count(),
-            "cpu_affinity": len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else None,
-            "drjit_threads": dr.thread_count(),
-            "python": platform.python_version(),
-        },
+        "command": args.command,
+        "date_utc": provenance.now_utc(),
+        "git": provenance.git_state(),
+        "machine": {**provenance.machine(), "drjit_threads": dr.thread_count()},
         "mitsuba_version": mi.__version__,
         "drjit_version": dr.__version__,
         "variant": mi.variant(),
@@ -427,16 +393,17 @@ def markdown(res) -> str:
         lines += ["## Notes", ""]
     else:
         lines += [_scene_header(res) + " " + _machine_line(res), "", *_scene_body(res)]
-    lines += [*_NOTES, "Command:", "", "```", res["command"], "```", ""]
+    lines += [*_NOTES, *provenance.command_block(res["command"])]
     if "scenes" in res:
-        lines += ["which ran, one process per scene:", "", "```",
+        lines += ["which ran, one process per scene (each also with `--out` a temporary file):",
+                  "", "```",
                   *(r["subprocess_command"] for r in res["scenes"]), "```", ""]
     return "\n".join(lines)
 
 
 def run_scenes(args, scenes) -> dict:
     """Each scene in its own subprocess; the single-scene results merged."""
-    t0 = time.perf_counter()
+    t0 = timing.clock()
     results = []
     with tempfile.TemporaryDirectory(prefix="speed-") as tmp:
         for i, scene in enumerate(scenes):
@@ -446,25 +413,23 @@ def run_scenes(args, scenes) -> dict:
                    "--max-depth", str(args.max_depth)]
             if args.variant:
                 cmd += ["--variant", args.variant]
-            print(f"[{scene}] python -m benchmarks.speed {shlex.join(cmd)}", flush=True)
-            env = dict(os.environ)
-            env["PYTHONPATH"] = os.pathsep.join(p for p in (str(REPO), env.get("PYTHONPATH"))
-                                                if p)
+            child = f"{CHILD} {shlex.join(cmd)}"
+            print(f"[{scene}] {child}", flush=True)
             subprocess.run([sys.executable, "-m", "benchmarks.speed", *cmd, "--out", str(out)],
-                           env=env, check=True, stdout=subprocess.DEVNULL)
+                           env=provenance.subprocess_env(), check=True,
+                           stdout=subprocess.DEVNULL)
             r = json.loads(out.read_text())
             # the subprocess's own command without its temporary --out
-            r["command"] = r["subprocess_command"] = ("python -m benchmarks.speed "
-                                                      + shlex.join(cmd))
+            r["command"] = r["subprocess_command"] = child
             results.append(r)
     return {
         "benchmark": "benchmarks.speed",
-        "command": _command(),
-        "date_utc": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
-        "git": _git_state(),
+        "command": args.command,
+        "date_utc": provenance.now_utc(),
+        "git": provenance.git_state(),
         "mode": "one subprocess per scene, results merged; each entry of `scenes` is that "
                 "scene's single-scene result",
-        "total_seconds": time.perf_counter() - t0,
+        "total_seconds": timing.clock() - t0,
         "summary": {r["scene"]: {k: {"median_of_per_round_ratios": v["median_of_per_round_ratios"],
                                      "min": v["min"], "max": v["max"]}
                                  for k, v in r["ratios"].items()} for r in results},
@@ -473,14 +438,15 @@ def run_scenes(args, scenes) -> dict:
 
 
 def main(argv=None):
+    from integrators.app.imageio import write_text
     args = parse_args(argv)
+    args.command = provenance.command(PROG, argv)
     scenes = args.scene or [s for s, _ in DEFAULT_SCENES]
     res = run(args) if len(scenes) == 1 and args.scene else run_scenes(args, scenes)
     out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(res, indent=2) + "\n")
+    write_text(out, json.dumps(res, indent=2) + "\n")
     md = markdown(res)
-    out.with_suffix(".md").write_text(md)
+    write_text(out.with_suffix(".md"), md)
     print(md)
     print(f"wrote {out} and {out.with_suffix('.md')} ({res['total_seconds']:.1f} s)")
 
