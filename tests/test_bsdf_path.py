@@ -7,39 +7,30 @@ compensation must be rejected.
 """
 from __future__ import annotations
 
-import mitsuba as mi
 import pytest
 
 import integrators  # noqa: F401
 from integrators import testing
 from integrators.plugins.bsdf_path import HEMISPHERE
+from integrators.testing import assert_unbiased, check_unbiased
+from integrators.testing.scenes import closed_sphere_scene, furnace_scene
 
-from scenes import closed_sphere_scene, furnace_scene
-
-MAX_REL_SE = 0.005
-
-
-def run(scene_dict, integrator, expected, batches=32, spp=4096):
-    scene = mi.load_dict(scene_dict)
-    x = testing.batch_means(scene, mi.load_dict(integrator), batches=batches, spp=spp)
-    return testing.mean_test(x, expected)
+# assert_unbiased: 32 batches of 4096 spp, alpha DEFAULT_ALPHA, relative s.e. < 0.5 %
 
 
 @pytest.mark.parametrize("hemisphere", HEMISPHERE)
 def test_furnace_diffuse_sphere(hemisphere):
     """Convex diffuse sphere (albedo 0.6) in a constant environment of 1: L = 0.6."""
-    r = run(furnace_scene({"type": "diffuse", "reflectance": 0.6}),
-            {"type": "bsdf_path", "hemisphere": hemisphere}, 0.6)
-    assert r.passed and r.rel_se < MAX_REL_SE, r
+    assert_unbiased(furnace_scene({"type": "diffuse", "reflectance": 0.6}), 0.6,
+                    {"type": "bsdf_path", "hemisphere": hemisphere})
 
 
 @pytest.mark.parametrize("hemisphere", HEMISPHERE)
 def test_furnace_phong_sphere_white(hemisphere):
     """phong without its glossy lobe is Lambertian: L = rho_d = 0.8."""
-    r = run(furnace_scene({"type": "phong", "diffuse_reflectance": 0.8,
-                           "specular_reflectance": 0.0}),
-            {"type": "bsdf_path", "hemisphere": hemisphere}, 0.8)
-    assert r.passed and r.rel_se < MAX_REL_SE, r
+    assert_unbiased(furnace_scene({"type": "phong", "diffuse_reflectance": 0.8,
+                                   "specular_reflectance": 0.0}), 0.8,
+                    {"type": "bsdf_path", "hemisphere": hemisphere})
 
 
 @pytest.mark.parametrize("hemisphere", HEMISPHERE)
@@ -47,10 +38,10 @@ def test_furnace_phong_sphere_white(hemisphere):
 def test_closed_sphere_geometric_series(hemisphere, max_depth):
     """Inside a closed sphere of albedo 0.5 emitting 1: L = sum_{k<max_depth} 0.5^k."""
     rho, le = 0.5, 1.0
-    r = run(closed_sphere_scene(rho, le),
-            {"type": "bsdf_path", "hemisphere": hemisphere, "max_depth": max_depth,
-             "rr_depth": 2}, testing.closed_sphere_radiance(le, rho, max_depth))
-    assert r.passed and r.rel_se < MAX_REL_SE, r
+    assert_unbiased(closed_sphere_scene(rho, le),
+                    testing.closed_sphere_radiance(le, rho, max_depth),
+                    {"type": "bsdf_path", "hemisphere": hemisphere, "max_depth": max_depth,
+                     "rr_depth": 2})
 
 
 def test_negative_control_rr_without_compensation(monkeypatch):
@@ -62,5 +53,5 @@ def test_negative_control_rr_without_compensation(monkeypatch):
         return beta, active2  # survivors not divided by their survival probability
 
     monkeypatch.setattr(roulette, "roulette", biased)
-    r = run(closed_sphere_scene(0.5, 1.0), {"type": "bsdf_path", "rr_depth": 1}, 2.0)
+    r = check_unbiased(closed_sphere_scene(0.5, 1.0), 2.0, {"type": "bsdf_path", "rr_depth": 1})
     assert not r.passed, r

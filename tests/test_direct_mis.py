@@ -19,32 +19,18 @@ import integrators  # noqa: F401
 from integrators import testing
 from integrators.sampling import mis
 from integrators.sampling.mis import HEURISTICS
+from integrators.testing import assert_unbiased, check_unbiased
+from integrators.testing.scenes import POINTS, plane_scene
 
-from scenes import POINTS, plane_scene
+# every check: one per sensor, 32 batches of 8192 spp (unless stated); a noisier estimator gets
+# more samples (max_spp = 64 spp): the size is chosen from a pilot run and the test uses only
+# fresh batches (new seeds), so the choice cannot bias the test
+SPP = 8192
 
-MAX_REL_SE = 0.005
 
-
-def check(scene_dict, expected, integrator, batches=32, spp=8192, expect_pass=True):
-    scene = mi.load_dict(scene_dict)
-    integ = mi.load_dict(integrator)
-    results = []
-    for j, mu in enumerate(expected):
-        # a noisier estimator gets more samples: the size is chosen from a pilot run and the
-        # test uses only fresh batches (new seeds), so the choice cannot bias the test
-        n, seed = spp, 0
-        while True:
-            x = testing.batch_means(scene, integ, batches=batches, spp=n, sensor=j, seed0=seed)
-            r = testing.mean_test(x, mu)
-            if r.rel_se < MAX_REL_SE or n >= 64 * spp:
-                break
-            n, seed = n * 4, seed + batches
-        results.append(r)
-    if expect_pass:
-        for r in results:
-            assert r.passed, f"{integrator}: {r}"
-            assert r.rel_se < MAX_REL_SE, f"test too weak to see a few-percent bias: {r}"
-    return results
+def check(scene_dict, expected, integrator, batches=32, spp=SPP):
+    return assert_unbiased(scene_dict, expected, integrator, sensor=range(len(expected)),
+                           batches=batches, spp=spp, max_spp=64 * spp)
 
 
 @pytest.mark.parametrize("selection", ["uniform", "power"])
@@ -82,9 +68,9 @@ def test_point_and_area_lights_power_selection():
 def test_negative_control_mitsuba_direct_point_light_bug():
     """Mitsuba's direct with emitter_samples=4 makes point lights 4x too bright (#1861):
     the same check must reject it."""
-    d, expected = plane_scene(rects=[], points=POINT_LIGHTS, sensors_at=POINTS[:1])
-    [r] = check(d, expected, {"type": "direct", "emitter_samples": 4, "bsdf_samples": 1},
-                batches=16, spp=1024, expect_pass=False)
+    d, [expected] = plane_scene(rects=[], points=POINT_LIGHTS, sensors_at=POINTS[:1])
+    r = check_unbiased(d, expected, {"type": "direct", "emitter_samples": 4, "bsdf_samples": 1},
+                       batches=16, spp=1024, max_spp=64 * 1024)
     assert not r.passed, r
 
 
@@ -92,9 +78,9 @@ def test_negative_control_weights_summing_to_105(monkeypatch):
     orig = mis.Heuristic.weights
     monkeypatch.setattr(mis.Heuristic, "weights",
                         lambda self, q: [w * 1.05 for w in orig(self, q)])
-    d, expected = plane_scene(sensors_at=POINTS[:1])
-    [r] = check(d, expected, {"type": "direct_mis", "heuristic": "balance"},
-                expect_pass=False)
+    d, [expected] = plane_scene(sensors_at=POINTS[:1])
+    r = check_unbiased(d, expected, {"type": "direct_mis", "heuristic": "balance"}, spp=SPP,
+                       max_spp=64 * SPP)
     assert not r.passed, r
 
 

@@ -16,10 +16,13 @@ import pytest
 
 import integrators  # noqa: F401
 from integrators.sampling.light_selection import make
-
-from scenes import light_rect
+from integrators.testing import assert_sampling, chi2_test
+from integrators.testing.scenes import light_rect
 
 ALPHA = 1 - (1 - 1e-3) ** (1 / 3)
+# mi.chi2.ChiSquareTest over the sphere of directions, run quietly (no chi2_data.py written)
+CHI2 = {"domain": "sphere", "sample_dim": 3, "res": 51, "ires": 64, "sample_count": 2_000_000,
+        "alpha": ALPHA}
 ORIGIN = mi.ScalarPoint3f(0.1, 0.2, 0.0)
 
 
@@ -64,16 +67,10 @@ def adapters(sc, mode, drop_selection=False):
 @pytest.mark.parametrize("mode", ["uniform", "power", "adaptive"])
 def test_light_direction_sampling(mode):
     sample, pdf = adapters(scene(), mode)
-    chi2 = mi.chi2.ChiSquareTest(domain=mi.chi2.SphericalDomain(), sample_func=sample,
-                                 pdf_func=pdf, sample_dim=3, res=51, ires=64,
-                                 sample_count=2_000_000)
-    # quiet: no printing, and no chi2_data.py dumped into the working directory on failure
-    assert chi2.run(ALPHA, quiet=True), chi2.messages
+    assert_sampling(sample, pdf, **CHI2)
 
 
 def test_negative_control_pdf_without_selection():
     sample, pdf = adapters(scene(), "power", drop_selection=True)
-    chi2 = mi.chi2.ChiSquareTest(domain=mi.chi2.SphericalDomain(), sample_func=sample,
-                                 pdf_func=pdf, sample_dim=3, res=51, ires=64,
-                                 sample_count=2_000_000)
-    assert not chi2.run(ALPHA, quiet=True)
+    r = chi2_test(sample, pdf, **CHI2)
+    assert not r.passed, r

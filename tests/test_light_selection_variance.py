@@ -10,7 +10,6 @@ adaptive selection: the index it draws at a fixed point follows its own pmf."""
 from __future__ import annotations
 
 import importlib.util
-import math
 from pathlib import Path
 
 import drjit as dr
@@ -22,6 +21,8 @@ from scipy import stats
 import integrators  # noqa: F401
 from integrators import testing
 from integrators.sampling.light_selection import AdaptiveLightSelection
+from integrators.testing import assert_unbiased
+from integrators.testing.scenes import light_rect, plane_scene
 
 ROOT = Path(__file__).resolve().parents[1]
 _spec = importlib.util.spec_from_file_location("make_many_lights",
@@ -34,22 +35,9 @@ POINTS = [(0.1, 0.2, 0.0), (1.9, -1.3, 0.0), (-2.6, 2.4, 0.0)]
 
 
 def many_light_plane(spp=4096):
-    T = mi.ScalarTransform4f
-    d = {"type": "scene",
-         "floor": {"type": "rectangle", "to_world": T().scale(20.0),
-                   "bsdf": {"type": "diffuse", "reflectance": RHO}}}
-    expected = [0.0] * len(POINTS)
-    for k, (c, (hx, hy), le) in enumerate(many.lights()):
-        tw = T().translate(list(c)) @ T().rotate([1, 0, 0], 180) @ T().scale([hx, hy, 1.0])
-        d[f"light{k}"] = {"type": "rectangle", "to_world": tw,
-                          "emitter": {"type": "area", "radiance": le}}
-        verts = testing.rectangle_vertices(tw)
-        for j, p in enumerate(POINTS):
-            expected[j] += RHO / math.pi * le * testing.lambert_polygon_irradiance(p, (0, 0, 1),
-                                                                                   verts)
-    for j, p in enumerate(POINTS):
-        d[f"sensor{j}"] = testing.radiancemeter(p, np.add(p, (0.2, -0.3, 0.4)), spp)
-    return d, expected
+    """The diffuse floor (albedo RHO) under the 64 lights; (scene dict, expected per point)."""
+    rects = [(light_rect(c, (hx, hy)), le) for c, (hx, hy), le in many.lights()]
+    return plane_scene(rects, sensors_at=POINTS, spp=spp, rho=RHO, view=(0.2, -0.3, 0.4))
 
 
 @pytest.fixture(scope="module")
@@ -118,9 +106,8 @@ def test_path_integrators_unbiased_with_adaptive(plane, nee, mode, monkeypatch):
     monkeypatch.setattr(AdaptiveLightSelection, "UNROLL", LOOP_MODES[mode])
     scene, expected = plane
     integ = mi.load_dict({"type": nee, "light_selection": "adaptive", "max_depth": 2})
-    x = testing.batch_means(scene, integ, batches=32, spp=16384, sensor=1)
-    r = testing.mean_test(x, expected[1])
-    assert r.passed and r.rel_se < 0.01, r
+    assert_unbiased(scene, expected[1], integ, batches=32, spp=16384, sensor=1,
+                    max_rel_se=0.01)
 
 
 @pytest.mark.parametrize("mode", LOOP_MODES)

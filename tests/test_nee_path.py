@@ -16,17 +16,13 @@ import pytest
 import integrators  # noqa: F401
 from integrators import testing
 from integrators.sampling.roulette import RR_MODES
-
-from scenes import closed_box_scene
+from integrators.testing import assert_unbiased, check_unbiased, closed_box
 
 ROOT = Path(__file__).resolve().parents[1]
-MAX_REL_SE = 0.005
-
-
-def closed_check(integrator, rho=0.5, le=1.0, max_depth=-1, spp=4096):
-    scene = mi.load_dict(closed_box_scene(rho, le))
-    x = testing.batch_means(scene, mi.load_dict(integrator), batches=32, spp=spp)
-    return testing.mean_test(x, testing.closed_sphere_radiance(le, rho, max_depth))
+# closed box (rho 0.5, le 1): 32 batches of 4096 spp, alpha DEFAULT_ALPHA, relative s.e. < 0.5 %;
+# images: 16 batches of 512 spp against as many of Mitsuba's path, 4x4 blocks, median relative
+# s.e. of a block < 0.5 %
+IMAGES = {"batches": 16, "spp": 512}
 
 
 @pytest.mark.parametrize("rr", RR_MODES)
@@ -34,9 +30,8 @@ def closed_check(integrator, rho=0.5, le=1.0, max_depth=-1, spp=4096):
 def test_closed_sphere_every_rr_mode(rr, max_depth):
     if rr == "none" and max_depth == -1:
         max_depth = 40  # without roulette an unlimited path in a closed sphere never ends
-    r = closed_check({"type": "nee_path", "rr": rr, "rr_depth": 1, "max_depth": max_depth},
-                     max_depth=max_depth)
-    assert r.passed and r.rel_se < MAX_REL_SE, r
+    assert_unbiased(*closed_box(max_depth=max_depth),
+                    {"type": "nee_path", "rr": rr, "rr_depth": 1, "max_depth": max_depth})
 
 
 @pytest.mark.parametrize("extra", [{"light_samples": 3, "heuristic": "balance"},
@@ -44,8 +39,7 @@ def test_closed_sphere_every_rr_mode(rr, max_depth):
                                    {"split": 3, "heuristic": "maximum"},
                                    {"light_selection": "uniform", "heuristic": "partition"}])
 def test_closed_sphere_other_settings(extra):
-    r = closed_check({"type": "nee_path", **extra})
-    assert r.passed and r.rel_se < MAX_REL_SE, r
+    assert_unbiased(*closed_box(), {"type": "nee_path", **extra})
 
 
 def test_negative_control_rr_without_compensation(monkeypatch):
@@ -55,7 +49,7 @@ def test_negative_control_rr_without_compensation(monkeypatch):
     def biased(mode, rr_depth, rr_prob, beta, eta, depth, u, active):
         return beta, orig(mode, rr_depth, rr_prob, beta, eta, depth, u, active)[1]
     monkeypatch.setattr(roulette, "roulette", biased)
-    r = closed_check({"type": "nee_path", "rr": "fixed", "rr_depth": 1})
+    r = check_unbiased(*closed_box(), {"type": "nee_path", "rr": "fixed", "rr_depth": 1})
     assert not r.passed, r
 
 
@@ -71,41 +65,34 @@ def mitsuba_path_images(cornell):
 
 
 def test_same_image_as_mitsuba_path(cornell, mitsuba_path_images):
-    ours = testing.batch_images(cornell, mi.load_dict(
-        {"type": "nee_path", "max_depth": 8, "heuristic": "power", "light_selection": "uniform",
-         "rr": "throughput", "light_samples": 1, "split": 1}), batches=16, spp=512)
-    r = testing.image_test(ours, mitsuba_path_images)
-    assert r.passed, r
+    assert_unbiased(cornell, mitsuba_path_images,
+                    {"type": "nee_path", "max_depth": 8, "heuristic": "power",
+                     "light_selection": "uniform", "rr": "throughput", "light_samples": 1,
+                     "split": 1}, **IMAGES)
 
 
 @pytest.mark.parametrize("extra", [{"light_selection": "power", "heuristic": "balance"},
                                    {"light_samples": 4, "rr": "fixed"}])
 def test_other_settings_same_image_as_mitsuba_path(cornell, mitsuba_path_images, extra):
-    ours = testing.batch_images(cornell, mi.load_dict({"type": "nee_path", "max_depth": 8,
-                                                       **extra}), batches=16, spp=512)
-    r = testing.image_test(ours, mitsuba_path_images)
-    assert r.passed, r
+    assert_unbiased(cornell, mitsuba_path_images, {"type": "nee_path", "max_depth": 8, **extra},
+                    **IMAGES)
 
 
 def test_split_k_at_spp_over_k_matches_split_1(cornell):
     one = testing.batch_images(cornell, mi.load_dict({"type": "nee_path", "max_depth": 8}),
                                batches=16, spp=512, seed0=0)
-    four = testing.batch_images(cornell, mi.load_dict({"type": "nee_path", "max_depth": 8,
-                                                       "split": 4}), batches=16, spp=128,
-                                seed0=100)
-    r = testing.image_test(four, one)
-    assert r.passed, r
+    assert_unbiased(cornell, one, {"type": "nee_path", "max_depth": 8, "split": 4},
+                    batches=16, spp=128, seed0=100)
 
 
 def test_negative_control_max_depth_7_vs_8(cornell, mitsuba_path_images):
-    ours = testing.batch_images(cornell, mi.load_dict({"type": "nee_path", "max_depth": 7}),
-                                batches=16, spp=512)
-    r = testing.image_test(ours, mitsuba_path_images)
+    r = check_unbiased(cornell, mitsuba_path_images, {"type": "nee_path", "max_depth": 7},
+                       **IMAGES)
     assert not r.passed, r
 
 
 def test_negative_control_split_weight(monkeypatch):
     from integrators.sampling import roulette
     monkeypatch.setattr(roulette, "split_weight", lambda k: 1.0 / (k - 1))
-    r = closed_check({"type": "nee_path", "split": 4})
+    r = check_unbiased(*closed_box(), {"type": "nee_path", "split": 4})
     assert not r.passed, r

@@ -49,6 +49,7 @@ import pytest
 from scipy import integrate, stats
 
 import integrators
+from integrators.testing import bsdf_adapter, bsdf_context, chi2_test
 
 ALPHA = 0.001                         # family-wise level of each of the 4 statistical families (suite budget: README)
 SEED_BASE = 0x5EED
@@ -69,22 +70,10 @@ def _tex(v):
     return float(v)
 
 
-def _wi(deg):
-    t = math.radians(deg)
-    return mi.Vector3f(math.sin(t), 0.0, math.cos(t))
-
-
-def _ctx(component=None, type_mask=None):
-    ctx = mi.BSDFContext()
-    if component is not None:
-        ctx.component = component
-    if type_mask is not None:
-        ctx.type_mask = +type_mask
-    return ctx
-
-
-def _adapter(params, deg, ctx):
-    return mi.chi2.BSDFAdapter("phong", params, wi=_wi(deg), ctx=ctx)
+# the test kit: bsdf_context(component, type_mask) restricts a BSDFContext to lobes,
+# bsdf_adapter(params, deg, ctx) is mi.chi2.BSDFAdapter at incident angle deg, and chi2_test
+# runs mi.chi2.ChiSquareTest quietly (no printing, no chi2_data.py)
+_ctx = bsdf_context
 
 
 def _res(e):
@@ -145,31 +134,31 @@ CHI2_CASES += [
 def _neg_exponent_plus_one():
     """Sampler of e = 20 (glossy lobe, 30 deg) checked against the pdf of e = 21."""
     p = _phong(0.5, 0.4, 20)
-    sample, _ = _adapter(p, 30, _ctx(component=1))
-    _, pdf_wrong = _adapter(_phong(0.5, 0.4, 21), 30, _ctx(component=1))
+    sample, _ = bsdf_adapter(p, 30, _ctx(component=1))
+    _, pdf_wrong = bsdf_adapter(_phong(0.5, 0.4, 21), 30, _ctx(component=1))
     return sample, pdf_wrong, _res(20)
 
 
 def _neg_scaled_pdf():
     """pdf off by the factor (e+1)/(e+2) (the BRDF's normalisation used in the pdf), e = 20."""
     e = 20
-    sample, pdf = _adapter(_phong(0.5, 0.4, e), 30, _ctx(component=1))
+    sample, pdf = bsdf_adapter(_phong(0.5, 0.4, e), 30, _ctx(component=1))
     return sample, (lambda wo: pdf(wo) * ((e + 1.0) / (e + 2.0))), _res(e)
 
 
 def _neg_selection_probability():
     """Mixture (rho_d = 0.5, rho_g = 0.4: P = 4/9) checked against a 50/50 mixture pdf."""
     p = _phong(0.5, 0.4, 20)
-    sample, _ = _adapter(p, 30, _ctx())
-    _, pdf_d = _adapter(p, 30, _ctx(component=0))
-    _, pdf_g = _adapter(p, 30, _ctx(component=1))
+    sample, _ = bsdf_adapter(p, 30, _ctx())
+    _, pdf_d = bsdf_adapter(p, 30, _ctx(component=0))
+    _, pdf_g = bsdf_adapter(p, 30, _ctx(component=1))
     return sample, (lambda wo: 0.5 * pdf_d(wo) + 0.5 * pdf_g(wo)), _res(20)
 
 
 def _neg_sharp_exponent():
     """Sharpest tested lobe (e = 300, normal incidence, the least resolved case) against e = 315."""
-    sample, _ = _adapter(_phong(0.5, 0.4, 300), 0, _ctx(component=1))
-    _, pdf_wrong = _adapter(_phong(0.5, 0.4, 315), 0, _ctx(component=1))
+    sample, _ = bsdf_adapter(_phong(0.5, 0.4, 300), 0, _ctx(component=1))
+    _, pdf_wrong = bsdf_adapter(_phong(0.5, 0.4, 315), 0, _ctx(component=1))
     return sample, pdf_wrong, _res(300)
 
 
@@ -185,19 +174,16 @@ N_CHI2 = len(CHI2_CASES) + len(NEGATIVE_CONTROLS)
 
 def _chi2(sample, pdf, res_ires, seed):
     res, ires = res_ires
-    test = mi.chi2.ChiSquareTest(domain=mi.chi2.SphericalDomain(), sample_func=sample,
-                                 pdf_func=pdf, sample_dim=3, sample_count=1_000_000,
-                                 res=res, ires=ires, seed=seed)
-    # quiet=True: do not print, and do not write chi2_data.py into the working directory
-    ok = test.run(significance_level=ALPHA, test_count=N_CHI2, quiet=True)
-    return ok, test
+    test = chi2_test(sample, pdf, domain="sphere", sample_dim=3, sample_count=1_000_000,
+                     res=res, ires=ires, seed=seed, alpha=ALPHA, test_count=N_CHI2)
+    return test.passed, test
 
 
 @pytest.mark.parametrize("name,params,ctx_kw,deg", CHI2_CASES, ids=[c[0] for c in CHI2_CASES])
 def test_chi2_sampling_matches_pdf(name, params, ctx_kw, deg):
     # H0: sample() draws directions with density pdf() (same ctx).  Rejected at the Sidak level
     # 1 - 0.99^(1/N_CHI2) (~3e-4), so all chi^2 tests together fail falsely with prob. <= 1 %.
-    sample, pdf = _adapter(params, deg, _ctx(**ctx_kw))
+    sample, pdf = bsdf_adapter(params, deg, _ctx(**ctx_kw))
     seed = SEED_BASE + [c[0] for c in CHI2_CASES].index(name)
     ok, test = _chi2(sample, pdf, _res(params["exponent"]), seed)
     assert ok, f"chi^2 test rejected H0 for {name} (p = {test.p_value}):\n{test.messages}"

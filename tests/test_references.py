@@ -13,6 +13,7 @@ import pytest
 
 import integrators  # noqa: F401
 from integrators import testing
+from integrators.testing import assert_unbiased
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENES = {
@@ -54,6 +55,7 @@ PAIRS = [(s, e) for s in SCENES for e in OURS if (s, e) != ("demo", "bsdf_path")
 def test_same_image_as_mitsuba_path(scene_name, est):
     integ, depth = OURS[est]
     scene, ref = reference(scene_name, depth)
-    ours = testing.batch_images(scene, mi.load_dict(integ), batches=16, spp=1024)
-    r = testing.image_test(ours, ref, block=SCENES[scene_name][1])
-    assert r.passed, f"{est} on {scene_name}: {r}"
+    # no power guard (max_rel_se=None): at this budget the median relative s.e. of a block is
+    # 0.14-0.82 % (bsdf_path on the Cornell box 1.7 %); the closed-form tests carry the guard
+    assert_unbiased(scene, ref, integ, batches=16, spp=1024, block=SCENES[scene_name][1],
+                    max_rel_se=None)

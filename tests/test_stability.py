@@ -17,35 +17,28 @@ stays within mu^2 / 2 (N_l = N_b = 1) of the best single technique even where th
 """
 from __future__ import annotations
 
-import math
-
 import mitsuba as mi
 import numpy as np
 import pytest
 
 import integrators  # noqa: F401
 from integrators import testing
-
-from scenes import RHO, light_rect
+from integrators.testing.scenes import light_rect, plane_radiance, plane_scene
 
 T = mi.ScalarTransform4f
 P = (0.1, 0.05, 0.0)
 N = 1 << 20
 
 
-def plane(rects, extra=None, bsdf=None):
-    d = {"type": "scene", "plane": {"type": "rectangle", "to_world": T().scale(20.0),
-                                    "bsdf": bsdf or {"type": "diffuse", "reflectance": RHO}}}
-    for i, (tw, le) in enumerate(rects):
-        d[f"rect{i}"] = {"type": "rectangle", "to_world": tw,
-                         "emitter": {"type": "area", "radiance": le}}
+def plane(rects, extra=None):
+    """The diffuse plane (albedo 0.5) under ``rects``, no sensor, plus ``extra`` objects."""
+    d, _ = plane_scene(rects, sensors_at=[])
     d.update(extra or {})
     return d
 
 
 def lambert(rects, p=P):
-    return sum(RHO / math.pi * le * testing.lambert_polygon_irradiance(
-        p, (0, 0, 1), testing.rectangle_vertices(tw)) for tw, le in rects)
+    return plane_radiance(p, rects)
 
 
 TINY = [(light_rect((0.3, -0.2, 1.0), (0.004, 0.004)), 2.0e5)]

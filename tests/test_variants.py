@@ -12,9 +12,8 @@ import numpy as np
 import pytest
 
 import integrators
-from integrators import testing
-
-from scenes import closed_sphere_scene, plane_scene
+from integrators.testing import assert_unbiased
+from integrators.testing.scenes import closed_box_scene, closed_sphere_scene, plane_scene
 
 
 @pytest.fixture
@@ -25,11 +24,8 @@ def scalar():
 
 
 def _check(d, expected, integ, batches=8, spp=256):
-    scene = mi.load_dict(d)
-    for j, mu in enumerate(expected):
-        x = testing.batch_means(scene, mi.load_dict(integ), batches, spp, sensor=j)
-        r = testing.mean_test(x, mu)
-        assert r.passed and r.rel_se < 0.05, (integ, r)
+    assert_unbiased(d, expected, integ, sensor=range(len(expected)), batches=batches, spp=spp,
+                    max_rel_se=0.05)
 
 
 def test_scalar_direct_mis(scalar):
@@ -65,7 +61,6 @@ def test_set_variant_rejects_unknown():
                                    {"type": "mis3", "selection": "adaptive"},
                                    {"type": "direct_mis", "light_selection": "adaptive"}])
 def test_scalar_path_integrators(scalar, integ):
-    from scenes import closed_box_scene
     expected = 2.0 if integ["type"] != "direct_mis" else 1.5   # direct: L_e + rho L_e
     _check(closed_box_scene(0.5, 1.0), [expected], integ, spp=128)
 

@@ -27,8 +27,13 @@ Method (used by the test suite and meant for users' own integrators):
   mutation harness, tests/mutation.py, plants such biases and all are caught), and a check
   cannot pass merely because it is too noisy to see anything.
 
-Closed forms: :func:`lambert_polygon_irradiance` (Lambert's formula for a uniformly emitting
-polygon), :func:`point_light_irradiance`, :func:`closed_sphere_radiance` (the geometric series).
+Closed forms live in :mod:`integrators.testing.closed_forms` (re-exported here), the scenes in
+:mod:`integrators.testing.scenes`, the one-call checks in :mod:`integrators.testing.unbiased` and
+:mod:`integrators.testing.chi2`.
+
+False-failure accounting: every check made through this kit (``mean_test``, ``image_test``,
+``chi2_test``) is added to :data:`CHECKS` with its significance level; the pytest plugin prints
+:func:`checks_summary` at the end of a run.
 """
 from __future__ import annotations
 
@@ -40,53 +45,35 @@ import mitsuba as mi
 import numpy as np
 from scipy import stats
 
+from .closed_forms import (closed_box_radiance, closed_sphere_radiance,  # noqa: F401
+                           furnace_radiance, lambert_polygon_irradiance,
+                           point_light_irradiance, rectangle_vertices)
+
 DEFAULT_ALPHA = 1.5e-5
 
-#: number of mean_test / image_test checks made in this process (the suite reports it)
-CHECKS = {"count": 0}
+#: checks made in this process (the pytest plugin reports them): ``count`` t / Welch checks
+#: (mean_test, image_test), ``chi2`` chi-square checks (chi2_test), ``alpha_sum`` the sum of
+#: the significance levels of all of them (the union bound on a false failure)
+CHECKS = {"count": 0, "chi2": 0, "alpha_sum": 0.0}
 
 
-# ---------------------------------------------------------------------------------------------
-# closed forms
-def lambert_polygon_irradiance(p, n, vertices) -> float:
-    """Irradiance at ``p`` (normal ``n``) from a polygon of unit radiance (Lambert 1760).
-
-    E = 1/2 sum_i Theta_i (n . g_i), Theta_i the angle the i-th edge subtends at p and g_i the
-    unit normal of the plane through p and that edge.  The polygon must lie entirely above the
-    tangent plane of p (no clipping is done) and face p."""
-    p, n = np.asarray(p, float), np.asarray(n, float)
-    r = [np.asarray(v, float) - p for v in vertices]
-    r = [v / np.linalg.norm(v) for v in r]
-    total = 0.0
-    for i in range(len(r)):
-        a, b = r[i], r[(i + 1) % len(r)]
-        theta = math.acos(float(np.clip(np.dot(a, b), -1, 1)))
-        g = np.cross(a, b)
-        g /= np.linalg.norm(g)
-        total += theta * float(np.dot(n, g))
-    return abs(0.5 * total)
+def count_check(alpha: float, kind: str = "count") -> None:
+    """Add one check at level ``alpha`` to :data:`CHECKS` (``kind``: "count" or "chi2")."""
+    CHECKS[kind] = CHECKS.get(kind, 0) + 1
+    CHECKS["alpha_sum"] = CHECKS.get("alpha_sum", 0.0) + float(alpha)
 
 
-def rectangle_vertices(to_world: "mi.ScalarTransform4f"):
-    """World-space corners of Mitsuba's ``rectangle`` shape ([-1,1]^2 at z=0) under to_world."""
-    corners = [(-1, -1, 0), (1, -1, 0), (1, 1, 0), (-1, 1, 0)]
-    return [np.array(to_world @ mi.ScalarPoint3f(*c), dtype=float) for c in corners]
-
-
-def point_light_irradiance(p, n, light_pos, intensity: float) -> float:
-    d = np.asarray(light_pos, float) - np.asarray(p, float)
-    dist2 = float(np.dot(d, d))
-    cos = float(np.dot(np.asarray(n, float), d)) / math.sqrt(dist2)
-    return intensity * max(cos, 0.0) / dist2
-
-
-def closed_sphere_radiance(le: float, rho: float, max_depth: int = -1) -> float:
-    """Radiance inside a closed diffuse sphere (albedo rho) emitting le everywhere.
-
-    Every bounce sees the same emission: L = le sum_{k < max_depth} rho^k (-1: le / (1-rho))."""
-    if max_depth < 0:
-        return le / (1.0 - rho)
-    return le * sum(rho ** k for k in range(max_depth))
+def checks_summary() -> str:
+    """One line: how many statistical checks ran and the false-failure bound they imply
+    (empty when none ran)."""
+    n, m = CHECKS.get("count", 0), CHECKS.get("chi2", 0)
+    if not n and not m:
+        return ""
+    bound = 100 * CHECKS.get("alpha_sum", 0.0)
+    line = f"statistical checks (t / Welch) in this run: {n} at alpha {DEFAULT_ALPHA:g} each"
+    if m:
+        line += f", plus {m} chi-square"
+    return line + f": false-failure bound {bound:.3g} %"
 
 
 # ---------------------------------------------------------------------------------------------
@@ -128,6 +115,9 @@ class MeanTest(_Verdict):
     p_value: float         # Sidak-combined over channels
     alpha: float
 
+    #: H0 of this test, in words
+    h0 = "unbiased, E[batch mean] = expected (Student t, Sidak over channels)"
+
     def __str__(self):
         return (f"mean {np.array2string(self.mean, precision=5)} vs expected "
                 f"{np.array2string(self.expected, precision=5)}: p = {self.p_value:.3g} "
@@ -144,7 +134,12 @@ def mean_test(x: np.ndarray, expected, alpha: float = DEFAULT_ALPHA,
     Renders accumulate in single precision, so a zero-variance estimator (cosine sampling of
     a diffuse furnace) is off by rounding alone: the standard error gets a floor of
     ``rounding_rtol * |expected|`` (1e-4, far below the few-percent biases the tests target)."""
-    CHECKS["count"] += 1
+    count_check(alpha)
+    return _mean_test(x, expected, alpha, rounding_rtol)
+
+
+def _mean_test(x, expected, alpha=DEFAULT_ALPHA, rounding_rtol=FLOAT32_RTOL) -> MeanTest:
+    """:func:`mean_test` without counting it (pilot runs that choose a sample size)."""
     x = np.atleast_2d(np.asarray(x, dtype=np.float64))
     k, c = x.shape
     expected = np.broadcast_to(np.asarray(expected, dtype=np.float64), (c,))
@@ -175,21 +170,43 @@ class ImageTest(_Verdict):
     worst_block: tuple      # (row, col, channel) of the smallest p
     rel_diff: float         # relative difference of the image means
     alpha: float
+    #: median over blocks and channels of the relative standard error of the block difference
+    #: (blocks black on both sides left out): below 0.005, a 5 % bias over the image gives
+    #: |t| >= 10 in at least half of the blocks
+    rel_se: float = float("nan")
+
+    #: H0 of this test, in words
+    h0 = "unbiased, the same expected image (Welch t per block and channel, Sidak)"
 
     def __str__(self):
         return (f"p = {self.p_value:.3g} (alpha {self.alpha:g}), worst block {self.worst_block}, "
-                f"image means differ by {100 * self.rel_diff:.3f} %")
+                f"image means differ by {100 * self.rel_diff:.3f} %, median relative s.e. of a "
+                f"block {100 * self.rel_se:.3f} %")
 
 
 def image_test(a: np.ndarray, b: np.ndarray, block: int = 4,
                alpha: float = DEFAULT_ALPHA) -> ImageTest:
     """H0: two estimators have the same expected image.
 
+    ``a`` and ``b`` are (batches, H, W, C) arrays of independent renders; ``b`` may also be one
+    (H, W, C) image taken as exact (a closed-form or converged image: no variance on its side).
     Pixels are averaged over ``block`` x ``block`` blocks (so heavy-tailed single pixels do not
-    break the normal approximation), Welch's t-test compares the batch means of each block and
-    channel, and the smallest p-value is Sidak-corrected over all blocks and channels.  Each
-    side's own variance enters, so a noisy reference does not cause false failures."""
-    CHECKS["count"] += 1
+    break the normal approximation; ``block`` is clamped to the image size), Welch's t-test
+    compares the batch means of each block and channel, and the smallest p-value is
+    Sidak-corrected over all blocks and channels.  Each side's own variance enters, so a noisy
+    reference does not cause false failures."""
+    count_check(alpha)
+    a = np.asarray(a, dtype=np.float64)
+    b = np.asarray(b, dtype=np.float64)
+    if a.ndim != 4 or b.ndim not in (3, 4):
+        raise ValueError(f"image_test: want (batches, H, W, C) arrays (the reference may be one "
+                         f"(H, W, C) image), got shapes {a.shape} and {b.shape}")
+    exact = b.ndim == 3
+    if exact:
+        b = b[None]
+    if b.shape[1:] != a.shape[1:]:
+        raise ValueError(f"image_test: image shapes differ: {a.shape[1:]} and {b.shape[1:]}")
+    block = max(1, min(block, a.shape[1], a.shape[2]))
 
     def blocks(x):
         k, h, w, c = x.shape
@@ -198,19 +215,24 @@ def image_test(a: np.ndarray, b: np.ndarray, block: int = 4,
         return x.mean(axis=(2, 4))
     ba, bb = blocks(a), blocks(b)
     ma, mb = ba.mean(0), bb.mean(0)
-    va, vb = ba.var(0, ddof=1) / ba.shape[0], bb.var(0, ddof=1) / bb.shape[0]
+    va = ba.var(0, ddof=1) / ba.shape[0]
+    vb = np.zeros_like(mb) if exact else bb.var(0, ddof=1) / bb.shape[0]
     floor = (FLOAT32_RTOL * np.maximum(np.abs(ma), np.abs(mb))) ** 2
     se2 = va + vb + floor
     with np.errstate(divide="ignore", invalid="ignore"):
         t = (ma - mb) / np.sqrt(se2)
-        dof = se2 ** 2 / (va ** 2 / (ba.shape[0] - 1) + vb ** 2 / (bb.shape[0] - 1) + 1e-300)
+        vb_term = 0.0 if exact else vb ** 2 / (bb.shape[0] - 1)
+        dof = se2 ** 2 / (va ** 2 / (ba.shape[0] - 1) + vb_term + 1e-300)
+        lit = (ma != 0) | (mb != 0)
+        rel = np.sqrt(va + vb)[lit] / np.maximum(np.abs(mb), np.abs(ma))[lit]
+    rel_se = float(np.median(rel)) if rel.size else float("inf")
     dof = np.clip(np.nan_to_num(dof, nan=1.0), 1.0, 1e6)
     p = np.where(se2 > 0, 2 * stats.t.sf(np.abs(np.nan_to_num(t)), dof),
                  np.where(ma == mb, 1.0, 0.0))
     i = np.unravel_index(int(np.argmin(p)), p.shape)
     p_comb = float(-np.expm1(p.size * np.log1p(-min(float(p[i]), 1 - 1e-16))))
     rel = float(abs(a.mean() - b.mean()) / max(abs(b.mean()), 1e-12))
-    return ImageTest(p_comb, tuple(int(x) for x in i), rel, alpha)
+    return ImageTest(p_comb, tuple(int(x) for x in i), rel, alpha, rel_se)
 
 
 # ---------------------------------------------------------------------------------------------
