@@ -12,6 +12,13 @@ from dataclasses import dataclass, field
 from typing import Any, Sequence
 
 
+#: upper bound of every count parameter (samples per vertex, continuations): a 32-bit loop counter
+#: holds far more, but one camera sample doing more work than this is a mistake, not a render
+MAX_COUNT = 1 << 16
+#: upper bound of depths (Mitsuba counts them in 32-bit unsigned integers, -1 = unlimited)
+MAX_DEPTH_VALUE = (1 << 31) - 1
+
+
 class ParameterError(ValueError):
     """A plugin parameter has a bad value; the message is meant for the user as is."""
 

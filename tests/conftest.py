@@ -11,6 +11,6 @@ def pytest_configure(config):
     pm = config.pluginmanager
     if pm.has_plugin("integrators") or pm.is_blocked("integrators"):
         return
-    from integrators.testing import pytest_plugin
+    import integrators_pytest as pytest_plugin
     if not pm.is_registered(pytest_plugin):
         pm.register(pytest_plugin, "integrators")

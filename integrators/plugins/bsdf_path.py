@@ -27,7 +27,7 @@ from ..params import Param
 from ..registry import plugin
 from ..sampling.roulette import RR_DEPTH, Roulette
 from ..sampling.techniques import HEMISPHERE, hemisphere_sample
-from .base import MAX_DEPTH, IntegratorTemplate
+from .base import HIDE_EMITTERS, MAX_DEPTH, IntegratorTemplate, has_delta_lights
 
 
 @plugin("bsdf_path", "integrator")
@@ -35,7 +35,7 @@ class BSDFPath(IntegratorTemplate):
     """Path tracing that finds light only by hitting it (uniform, cosine or BSDF sampling)."""
 
     PARAMS = (
-        MAX_DEPTH, RR_DEPTH,
+        MAX_DEPTH, RR_DEPTH, HIDE_EMITTERS,
         Param("hemisphere", "choice", "bsdf", choices=HEMISPHERE,
               doc="Direction sampling at each vertex."),
     )
@@ -43,22 +43,27 @@ class BSDFPath(IntegratorTemplate):
     def setup(self):
         self.russian_roulette = Roulette("throughput", self.rr_depth)
 
+    def scene_warnings(self, scene):
+        if has_delta_lights(scene):
+            return ["bsdf_path: BSDF sampling cannot reach the scene's point, spot or directional "
+                    "lights, so they add nothing to the image (nee_path samples them)"]
+        return []
+
     @dr.syntax
     def sample(self, scene, sampler, ray, medium=None, active=True):
         ctx = mi.BSDFContext()
         ray = mi.Ray3f(ray)
         active = mi.Bool(active)
-        L = mi.Spectrum(0.0)
         beta = mi.Spectrum(1.0)
         eta = mi.Float(1.0)
         depth = mi.UInt32(0)
         max_depth = depth_limit(self.max_depth)
-        si = scene.ray_intersect(ray, active)
+        self.prepare(scene)
+        si, L = self.camera_hit(scene, ray, active)
         valid = si.is_valid()
+        active &= valid & (1 < max_depth)
 
         while dr.hint(active, label="bsdf_path"):
-            L += beta * emitted(scene, si, active)
-            active &= si.is_valid() & (depth + 1 < max_depth)
             bsdf = bsdf_at(si, ray, active)
             s1, s2 = sampler.next_1d(active), sampler.next_2d(active)
             wo, weight, eta_v = hemisphere_sample(self.hemisphere, ctx, bsdf, si, s1, s2, active)
@@ -68,5 +73,7 @@ class BSDFPath(IntegratorTemplate):
             beta, active = self.russian_roulette(beta, eta, depth, sampler.next_1d(active), active)
             ray = si.spawn_ray(si.to_world(wo))
             si = scene.ray_intersect(ray, active)
+            L += dr.select(active, beta * emitted(scene, si, active), 0.0)
+            active &= si.is_valid() & (depth + 1 < max_depth)
 
         return L, valid, []

@@ -22,12 +22,12 @@ from __future__ import annotations
 import drjit as dr
 import mitsuba as mi
 
-from ..common import bsdf_at, emitted, is_jit
-from ..params import Param, ParameterError
+from ..common import bsdf_at, is_jit
+from ..params import MAX_COUNT, Param, ParameterError
 from ..registry import plugin
 from ..sampling import light_selection, mis
 from ..sampling.vertex import VertexEstimator
-from .base import IntegratorTemplate
+from .base import HIDE_EMITTERS, IntegratorTemplate
 
 
 @plugin("direct_mis", "integrator")
@@ -35,10 +35,10 @@ class DirectMIS(IntegratorTemplate):
     """Direct illumination by light sampling and BSDF sampling combined with MIS."""
 
     PARAMS = (
-        Param("light_samples", "int", 1, min=0, doc="N_l, light samples per camera sample."),
-        Param("bsdf_samples", "int", 1, min=0, doc="N_b, BSDF samples per camera sample."),
+        Param("light_samples", "int", 1, min=0, max=MAX_COUNT, doc="N_l, light samples per camera sample."),
+        Param("bsdf_samples", "int", 1, min=0, max=MAX_COUNT, doc="N_b, BSDF samples per camera sample."),
         *mis.PARAMS,
-        light_selection.PARAM,
+        light_selection.PARAM, HIDE_EMITTERS,
     )
 
     def setup(self):
@@ -52,11 +52,10 @@ class DirectMIS(IntegratorTemplate):
     def sample(self, scene, sampler, ray, medium=None, active=True):
         ctx = mi.BSDFContext()
         active = mi.Bool(active)
-        si = scene.ray_intersect(ray, active)
-        L = emitted(scene, si, active)
+        sel = self.prepare(scene)
+        si, L = self.camera_hit(scene, ray, active)
         valid = si.is_valid()
         active = active & valid
-        sel = self.lights(scene)
         bsdf = bsdf_at(si, ray, active)
         vx, n_b = self.vertex, self.bsdf_samples
         if n_b == 0:

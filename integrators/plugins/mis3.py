@@ -43,14 +43,14 @@ import dataclasses
 import drjit as dr
 import mitsuba as mi
 
-from ..common import any_flag, bsdf_at, bsdf_flags, channel_mean, depth_limit, emitted, is_jit, \
-    lnot, safe_div
+from ..common import any_flag, bsdf_at, bsdf_flags, channel_mean, depth_limit, is_jit, lnot, \
+    safe_div
 from ..params import Param, ParameterError
 from ..registry import plugin
 from ..sampling import light_selection, mis, roulette
 from ..sampling.techniques import DIFFUSE, GLOSSY, lobe_contexts, lobe_densities
 from ..sampling.vertex import VertexEstimator
-from .base import MAX_DEPTH, IntegratorTemplate
+from .base import HIDE_EMITTERS, MAX_DEPTH, IntegratorTemplate
 
 
 def _prob(name, default, doc):
@@ -69,7 +69,7 @@ class MIS3(IntegratorTemplate):
               doc="Technique probabilities: the fixed p-vector or adapted per vertex."),
         dataclasses.replace(mis.PARAMS[0], default="balance"), *mis.PARAMS[1:],
         light_selection.PARAM,
-        MAX_DEPTH, *roulette.RR_PARAMS,
+        MAX_DEPTH, *roulette.RR_PARAMS, HIDE_EMITTERS,
     )
 
     def setup(self):
@@ -84,13 +84,18 @@ class MIS3(IntegratorTemplate):
 
     def technique_probs(self, bsdf, si, has_lights: bool, active):
         """(p1, p2, p3) at this vertex, summing to one (zero where nothing is there)."""
-        if self.params["selection"] == "fixed":
-            p1, p2, p3 = (mi.Float(p) for p in self.p_fixed)
-            return p1, p2, (p3 if has_lights else p3 * 0.0)
         flags = bsdf_flags(bsdf)
         has_d = any_flag(flags, DIFFUSE)
         has_g = any_flag(flags, GLOSSY)
         smooth = mi.has_flag(flags, mi.BSDFFlags.Smooth)
+        if self.params["selection"] == "fixed":
+            # the fixed p-vector over the techniques this vertex has: a mirror, glass or null
+            # surface samples its lobe with probability 1 and draws no light sample
+            r1 = dr.select(has_d, self.p_fixed[0], 0.0)
+            r2 = dr.select(has_g, self.p_fixed[1], 0.0)
+            r3 = dr.select(smooth, self.p_fixed[2], 0.0) if has_lights else mi.Float(0.0)
+            inv = safe_div(1.0, r1 + r2 + r3)
+            return r1 * inv, r2 * inv, r3 * inv
         a_d = mi.Float(0.5)
         if bsdf is not None:
             a_d = channel_mean(bsdf.eval_diffuse_reflectance(si, active & has_d))
@@ -105,14 +110,13 @@ class MIS3(IntegratorTemplate):
     def sample(self, scene, sampler, ray, medium=None, active=True):
         ctx, ctx_d, ctx_g = lobe_contexts()
         vx = self.vertex
-        sel = self.lights(scene)
+        sel = self.prepare(scene)
         has_lights = sel.count > 0
         max_depth = depth_limit(self.max_depth)
         ray = mi.Ray3f(ray)
         active = mi.Bool(active)
-        si = scene.ray_intersect(ray, active)
+        si, L = self.camera_hit(scene, ray, active)
         valid = si.is_valid()
-        L = emitted(scene, si, active)
         beta = mi.Spectrum(1.0)
         eta = mi.Float(1.0)
         depth = mi.UInt32(0)

@@ -28,12 +28,12 @@ import dataclasses
 import drjit as dr
 import mitsuba as mi
 
-from ..common import bsdf_at, depth_limit, emitted
-from ..params import Param
+from ..common import bsdf_at, depth_limit
+from ..params import MAX_COUNT, Param
 from ..registry import plugin
 from ..sampling import light_selection, mis, roulette
 from ..sampling.vertex import VertexEstimator
-from .base import MAX_DEPTH, IntegratorTemplate
+from .base import HIDE_EMITTERS, MAX_DEPTH, IntegratorTemplate
 
 
 @plugin("nee_path", "integrator")
@@ -44,8 +44,9 @@ class NEEPath(IntegratorTemplate):
         MAX_DEPTH, *roulette.RR_PARAMS,
         dataclasses.replace(mis.PARAMS[0], default="power"), *mis.PARAMS[1:],
         light_selection.PARAM,
-        Param("light_samples", "int", 1, min=0, doc="Shadow rays per vertex (NEE splitting)."),
-        Param("split", "int", 1, min=1, doc="Independent continuations from the first hit."),
+        Param("light_samples", "int", 1, min=0, max=MAX_COUNT, doc="Shadow rays per vertex (NEE splitting)."),
+        Param("split", "int", 1, min=1, max=MAX_COUNT, doc="Independent continuations from the first hit."),
+        HIDE_EMITTERS,
     )
 
     def setup(self):
@@ -59,10 +60,9 @@ class NEEPath(IntegratorTemplate):
     def sample(self, scene, sampler, ray, medium=None, active=True):
         active = mi.Bool(active)
         ray = mi.Ray3f(ray)
-        sel = self.lights(scene)
-        si = scene.ray_intersect(ray, active)
+        sel = self.prepare(scene)
+        si, L = self.camera_hit(scene, ray, active)
         valid = si.is_valid()
-        L = emitted(scene, si, active)
         active = active & valid & (1 < depth_limit(self.max_depth))
         if dr.hint(self.split == 1, mode="scalar"):
             L += self.reflected(scene, sampler, sel, ray, si, active)

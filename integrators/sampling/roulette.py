@@ -13,9 +13,9 @@ import drjit as dr
 import mitsuba as mi
 
 from ..common import lnot
-from ..params import Param
+from ..params import MAX_DEPTH_VALUE, Param
 
-RR_DEPTH = Param("rr_depth", "int", 5, min=1,
+RR_DEPTH = Param("rr_depth", "int", 5, min=1, max=MAX_DEPTH_VALUE,
                  doc="Path depth at which Russian roulette starts.")
 
 RR_MODES = ("none", "fixed", "throughput")

@@ -7,8 +7,8 @@ r"""Direction-sampling techniques at a surface other than the BSDF's own ``sampl
   vertex, since no density over directions can hit a delta lobe.
 * **Lobe techniques** (``mis3``): any Mitsuba BSDF split by its component flags through
   ``BSDFContext.type_mask``: components with ``DiffuseReflection``/``DiffuseTransmission`` form
-  the *cosine* technique; components with ``Glossy*`` or ``Delta*`` flags form the *glossy*
-  technique.  :func:`lobe_contexts` gives the two contexts; :func:`lobe_densities` the two pdfs
+  the *cosine* technique; components with ``Glossy*``, ``Delta*`` or ``Null`` flags (a
+  ``null`` surface passes the ray on) form the *glossy* technique.  :func:`lobe_contexts` gives the two contexts; :func:`lobe_densities` the two pdfs
   of a direction (for ``phong``, ``plastic``, ``roughplastic``: each lobe's own pdf).
 """
 from __future__ import annotations
@@ -22,7 +22,7 @@ HEMISPHERE = ("uniform", "cosine", "bsdf")
 
 DIFFUSE = mi.BSDFFlags.DiffuseReflection | mi.BSDFFlags.DiffuseTransmission
 GLOSSY = (mi.BSDFFlags.GlossyReflection | mi.BSDFFlags.GlossyTransmission |
-          mi.BSDFFlags.DeltaReflection | mi.BSDFFlags.DeltaTransmission)
+          mi.BSDFFlags.DeltaReflection | mi.BSDFFlags.DeltaTransmission | mi.BSDFFlags.Null)
 
 
 def hemisphere_sample(mode: str, ctx, bsdf, si, s1, s2, active):

@@ -18,12 +18,11 @@ Test your own integrator (registered with ``mi.register_integrator``)::
   (:func:`mean_test`, :func:`image_test`, :func:`batch_means`, ... in
   :mod:`integrators.testing.stats`), :data:`CHECKS` / :data:`DEFAULT_ALPHA` (false-failure
   accounting);
-* the pytest plugin :mod:`integrators.testing.pytest_plugin` (loaded automatically when this
+* the pytest plugin :mod:`integrators_pytest` (a top-level module) (loaded automatically when this
   package is installed): fixtures ``assert_unbiased``, ``closed_box``, ``closed_sphere``,
   ``polygon_light_plane``, ``furnace`` and the end-of-run line counting statistical checks.
 
-Names are imported on first use, so ``import integrators.testing`` (which the pytest plugin
-does in every pytest run) does not load scipy.
+Names are imported on first use, so ``import integrators.testing`` does not load scipy.
 """
 from __future__ import annotations
 
@@ -48,7 +47,7 @@ __all__ = sorted(_WHERE)
 
 
 def __getattr__(name):
-    if name in _EXPORTS or name == "pytest_plugin":       # a submodule
+    if name in _EXPORTS:       # a submodule
         return importlib.import_module(f"{__name__}.{name}")
     mod = _WHERE.get(name)
     if mod is None:

@@ -1,7 +1,10 @@
-"""pytest plugin of the test kit, loaded through the ``pytest11`` entry point ``integrators``
-in every project that installs this package (``-p no:integrators`` disables it; with
+"""pytest plugin of the test kit (:mod:`integrators.testing`), loaded through the ``pytest11``
+entry point ``integrators`` in every project that installs this package.  It is a top-level
+module, outside the ``integrators`` package, so that loading it imports neither the package nor
+Mitsuba: pytest starts as fast as without it in projects that never use the fixtures, and a
+machine without a usable LLVM still runs their tests (``-p no:integrators`` disables it; with
 ``PYTEST_DISABLE_PLUGIN_AUTOLOAD`` set, load it with ``-p integrators``).  Naming it a second
-time (``-p integrators.testing.pytest_plugin``) does nothing.
+time (``-p integrators_pytest``) does nothing.
 
 Fixtures (mitsuba, numpy and scipy are imported only when a fixture is used):
 
@@ -27,7 +30,7 @@ _ALIASES = ("integrators", __name__)
 
 def pytest_plugin_registered(plugin, plugin_name, manager):
     """Registered under one name, block the other: naming the plugin again (``-p
-    integrators.testing.pytest_plugin``, ``pytest_plugins``, a conftest registering it) is
+    integrators_pytest``, ``pytest_plugins``, a conftest registering it) is
     then a no-op instead of pytest's "Plugin already registered under a different name"."""
     if plugin is not sys.modules.get(__name__):
         return
@@ -41,7 +44,7 @@ def pytest_plugin_registered(plugin, plugin_name, manager):
 def assert_unbiased():
     """:func:`integrators.testing.assert_unbiased`: ``assert_unbiased(scene, expected,
     integrator, spp=..., batches=..., alpha=..., max_rel_se=...)``."""
-    from .unbiased import assert_unbiased as f
+    from integrators.testing.unbiased import assert_unbiased as f
     return f
 
 
@@ -49,7 +52,7 @@ def assert_unbiased():
 def closed_box():
     """Factory ``closed_box(rho=0.5, le=1.0, max_depth=-1, spp=4096)`` -> (scene dict,
     le sum_{k<max_depth} rho^k): camera inside a closed emitting diffuse cube."""
-    from .scenes import closed_box as f
+    from integrators.testing.scenes import closed_box as f
     return f
 
 
@@ -57,7 +60,7 @@ def closed_box():
 def closed_sphere():
     """Factory ``closed_sphere(rho=0.5, le=1.0, max_depth=-1, spp=4096)``: the same series in
     a closed emitting sphere (integrators without light sampling)."""
-    from .scenes import closed_sphere as f
+    from integrators.testing.scenes import closed_sphere as f
     return f
 
 
@@ -65,7 +68,7 @@ def closed_sphere():
 def polygon_light_plane():
     """Factory ``polygon_light_plane(at=(0.7, 0.3, 0), rects=..., points=(), spp=4096)`` ->
     (scene dict, rho/pi x Lambert's polygon irradiance + point lights): direct light only."""
-    from .scenes import polygon_light_plane as f
+    from integrators.testing.scenes import polygon_light_plane as f
     return f
 
 
@@ -73,7 +76,7 @@ def polygon_light_plane():
 def furnace():
     """Factory ``furnace(rho=0.6, env=1.0, bsdf=None, spp=4096)`` -> (scene dict, rho env):
     a sphere of albedo rho in a constant environment."""
-    from .scenes import furnace as f
+    from integrators.testing.scenes import furnace as f
     return f
 
 
