@@ -1,40 +1,55 @@
-r"""Integrator ``mis3``: the lecture's three-PDF one-sample MIS, recursively.
+r"""Integrator ``mis3``: the lecture's three-PDF one-sample MIS, at every vertex of a path.
 
-At every vertex one technique I is chosen with probability p(I):
+Three techniques sample the integrand f L cos at a vertex x:
 
-1. the **cosine lobe**: ``BSDF.sample`` restricted to the BSDF's diffuse components,
-2. the **glossy lobe**: ``BSDF.sample`` restricted to its glossy and delta components,
-3. **light sampling**: a light by ``light_selection``, a point on it (area form converted to
-   solid angle), a shadow ray.
+1. the **cosine lobe** p_1: ``BSDF.sample`` restricted to the BSDF's diffuse components,
+2. the **glossy lobe** p_2: ``BSDF.sample`` restricted to its glossy components,
+3. **light sampling** p_3: a light by ``light_selection``, a point on it, a shadow ray.
 
-**Component rule** (:mod:`integrators.sampling.techniques`): any Mitsuba BSDF is split by its
-component flags; p_1(omega) and p_2(omega) are the BSDF's pdfs with only the diffuse or only the
-glossy and delta components enabled, p_3(omega) = p(light) p_light(omega), zero for a direction
-that hits no light.  Light samples, emission weights and roulette are the shared per-vertex
-estimator's (:mod:`integrators.sampling.vertex`) with one-sample densities q_I = p(I) p_I.
+Technique probabilities p(1), p(2), p(3) come from ``selection`` (below), over the techniques
+the vertex has (:mod:`integrators.sampling.techniques` splits any Mitsuba BSDF by its component
+flags).
 
-**Estimator.** The integrand f L cos is split into the emitted part (f L_e cos) and the
-reflected part (f L_r cos).  With q_k = p(k) p_k(omega):
+**Estimator.**  The integrand is split into the emitted part f L_e cos and the reflected part
+f L_r cos.  At each vertex:
 
-* emitted light found by technique I (a BSDF direction that hits a light, or a light sample)
-  adds  beta f cos L_e w_I(q_1, q_2, q_3) / (p(I) p_I);
-* the path continues only after techniques 1 and 2, with
-  beta *= f cos w'_I(q_1, q_2) / (p(I) p_I), where w' is the heuristic over the two BSDF
-  techniques (light sampling cannot continue a path, so it takes no share of the reflected part);
-  choosing I = 3 ends the path after its shadow ray.
-Both sums of weights are one wherever a technique can produce omega, so the estimator is
-unbiased for any p-vector (this is the lecture's scheme, where a BSDF direction in Omega_direct
-contributes L_e with weight w_I and one in Omega_indirect continues the recursion; here a light
-that also reflects continues the path as well).  Delta lights and delta lobes take weight 1.
+* with probability p(3) a light sample x_l is drawn (technique 3);
+* **every path continues**: a lobe J in {1, 2} is drawn with probability
+  pi_J = p(J) / (p(1) + p(2)) (the technique choice given that the path goes on; with p(3) = 0 it
+  is the lecture's p(I) itself), and a direction omega ~ p_J.
 
-**Technique probabilities** (``selection``): ``fixed`` uses (``p_cosine``, ``p_glossy``,
-``p_light``) normalised.  ``adaptive`` chooses p(I) per vertex from what is there: the cosine
-technique gets p_cosine * a_d if the BSDF has a diffuse component (a_d = mean diffuse albedo
-from ``eval_diffuse_reflectance``, 1/2 when a BSDF does not report it), the glossy technique
-p_glossy * (1 - a_d) if it has a glossy or delta component (p_glossy alone without a diffuse
-one), light sampling p_light if the scene has lights and the BSDF a smooth component; then
-normalised.  A diffuse surface never draws from the glossy pdf and a scene without lights never
-draws light samples.
+Per vertex the effective densities are q_3 = p(3) p_3 and q_J = pi_J p_J: the expected number
+of samples each technique contributes at x (the one-sample MIS of the lecture, with the light
+technique's sample taken in addition to, not instead of, the continuation).  Then
+
+* the light sample adds  f L_e G w_3(q_3, q_1, q_2) / (p(3) p_3(x_l));
+* emission found by the continuation adds  f L_e cos w_J(q_3, q_1, q_2) / q_J(omega);
+* the throughput becomes  beta f cos w'_J(q_1, q_2) / q_J(omega), w' the heuristic over the
+  two lobe techniques (light sampling produces no continuation).
+
+For every direction the weights of the techniques that can produce it sum to one (w_3 + w_1 +
+w_2 = 1 for emission, w'_1 + w'_2 = 1 for the reflected part), so
+E[contribution] = sum_k p(k-sample) E[w_k f / q_k] = integral of f: unbiased for **any**
+technique probabilities, including ones learned from the render itself (tested with random
+p-vectors).
+
+**Delta lobes and null surfaces skip the choice.**  A vertex whose BSDF has a delta (specular)
+or ``null`` component continues with the BSDF's own sample (``BSDF.sample`` over all its
+lobes: the BSDF picks the delta part in proportion to its weight, e.g. Fresnel), so the delta
+part is not divided by a technique probability; its smooth part then has the single density
+q_b = p_bsdf(omega) against q_3.  A purely specular or null vertex draws no light sample.
+Delta lights take weight 1.
+
+**Technique probabilities** (``selection``):
+
+* ``fixed``: (``p_cosine``, ``p_glossy``, ``p_light``) over the techniques the vertex has,
+  normalised (a diffuse surface never draws from the glossy pdf; a scene without lights, or a
+  vertex without a smooth lobe, never draws light samples);
+* ``adaptive``: the cosine technique gets p_cosine a_d, the glossy one p_glossy (1 - a_d),
+  a_d the diffuse albedo (``eval_diffuse_reflectance``, 1/2 when a BSDF does not report it), the
+  light p_light; normalised.
+
+With p(1) = p(2) = 0 (``p_light = 1``) the continuation is the BSDF's own sample.
 """
 from __future__ import annotations
 
@@ -48,7 +63,7 @@ from ..common import any_flag, bsdf_at, bsdf_flags, channel_mean, depth_limit, i
 from ..params import Param, ParameterError
 from ..registry import plugin
 from ..sampling import light_selection, mis, roulette
-from ..sampling.techniques import DIFFUSE, GLOSSY, lobe_contexts, lobe_densities
+from ..sampling.techniques import DELTA, DIFFUSE, GLOSSY, lobe_contexts, lobe_densities
 from ..sampling.vertex import VertexEstimator
 from .base import HIDE_EMITTERS, MAX_DEPTH, IntegratorTemplate
 
@@ -125,51 +140,65 @@ class MIS3(IntegratorTemplate):
         while dr.hint(active, label="mis3"):
             bsdf = bsdf_at(si, ray, active)
             p1, p2, p3 = self.technique_probs(bsdf, si, has_lights, active)
-            u = sampler.next_1d(active)
-            use_l = (p3 > 0) & (u >= p1 + p2)
-            use_1 = lnot(use_l) & (u < p1)
+            # the BSDF's own sample where it has a delta or null part (or no lobe technique has
+            # a probability, p_light = 1), else the chosen lobe
+            own = active & (any_flag(bsdf_flags(bsdf), DELTA) | (p1 + p2 <= 0))
+            pi1 = safe_div(p1, p1 + p2)
 
-            # ---- technique 3: light sampling (ends the path) ----
-            norm = None   # the light selection's normaliser at si, reused by technique 1/2
-            if is_jit() or (active and use_l and has_lights):
-                ls = vx.light_sample(scene, sel, sampler, si, active & use_l)
+            # ---- technique 3: a light sample, with probability p(3) ----
+            norm = None   # the light selection's normaliser at si, reused for the emission
+            use_l = active & (sampler.next_1d(active) < p3)
+            if is_jit() or (use_l and has_lights):
+                ls = vx.light_sample(scene, sel, sampler, si, use_l)
                 norm = ls.norm
                 wo = si.to_local(ls.ds.d)
-                f = bsdf.eval(ctx, si, wo, ls.visible)
-                q_b = lobe_densities(bsdf, ctx_d, ctx_g, si, wo, p1, p2, ls.visible)
+                f, pdf_own = bsdf.eval_pdf(ctx, si, wo, ls.visible)
+                q_d, q_g = lobe_densities(bsdf, ctx_d, ctx_g, si, wo, pi1, 1.0 - pi1,
+                                          ls.visible & lnot(own))
+                q_b = [dr.select(own, pdf_own, q_d), dr.select(own, 0.0, q_g)]
                 L += beta * safe_div(vx.light_term(ls, f, q_b, light_scale=p3), p3)
             else:
                 sampler.next_1d()
                 sampler.next_2d()
 
-            # ---- techniques 1 and 2: a lobe of the BSDF (continues the path) ----
+            # ---- the continuation: a lobe J with probability pi_J (or the BSDF's own) ----
+            use_1 = lnot(own) & (sampler.next_1d(active) < pi1)
             s1, s2 = sampler.next_1d(active), sampler.next_2d(active)
-            act_b = active & lnot(use_l)
-            if is_jit() or act_b:
-                bs_d, _ = bsdf.sample(ctx_d, si, s1, s2, act_b & use_1)
-                bs_g, w_g = bsdf.sample(ctx_g, si, s1, s2, act_b & lnot(use_1))
-                wo = dr.select(use_1, bs_d.wo, bs_g.wo)
-                delta = lnot(use_1) & mi.has_flag(bs_g.sampled_type, mi.BSDFFlags.Delta)
-                act_b &= dr.select(use_1, bs_d.pdf, bs_g.pdf) > 0
-                smooth_b = act_b & lnot(delta)
-                f = bsdf.eval(ctx, si, wo, smooth_b)
-                q1, q2 = lobe_densities(bsdf, ctx_d, ctx_g, si, wo, p1, p2, smooth_b)
-                # f cos / (p(I) p_I): delta lobes give the BSDF's own weight / p(2)
-                ratio = dr.select(delta, safe_div(w_g, p2),
-                                  safe_div(f, dr.select(use_1, q1, q2)))
-                w_ind = self.heur.weights([q1, q2])
-                w_ind = dr.select(delta, 1.0, dr.select(use_1, w_ind[0], w_ind[1]))
-                ray_b = si.spawn_ray(si.to_world(wo))
-                si_b = scene.ray_intersect(ray_b, act_b)
-                L_e = vx.emission(scene, sel, si, si_b, [q1, q2], delta, act_b, norm,
-                                  index=use_1, light_scale=p3)
-                L += dr.select(act_b, beta * ratio * L_e, 0.0)
-                beta = dr.select(act_b, beta * ratio * w_ind, 0.0)
-                eta *= dr.select(use_1, bs_d.eta, bs_g.eta)
+            act = mi.Bool(active)
+            if is_jit() or act:
+                ctx_j = ctx
+                if not is_jit():
+                    ctx_j = ctx if own else (ctx_d if use_1 else ctx_g)
+                    bs, w_own = bsdf.sample(ctx_j, si, s1, s2, act)
+                else:
+                    bs_o, w_own = bsdf.sample(ctx, si, s1, s2, act & own)
+                    bs_d, _ = bsdf.sample(ctx_d, si, s1, s2, act & use_1)
+                    bs_g, _ = bsdf.sample(ctx_g, si, s1, s2, act & lnot(own | use_1))
+                    bs = dr.select(own, bs_o, dr.select(use_1, bs_d, bs_g))
+                delta = mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta)
+                act &= bs.pdf > 0
+                smooth_b = act & lnot(delta)
+                f = bsdf.eval(ctx, si, bs.wo, smooth_b & lnot(own))
+                q_d, q_g = lobe_densities(bsdf, ctx_d, ctx_g, si, bs.wo, pi1, 1.0 - pi1,
+                                          smooth_b & lnot(own))
+                q_b = [dr.select(own, bs.pdf, q_d), dr.select(own, 0.0, q_g)]
+                first = own | use_1                       # which entry of q_b sampled omega
+                # f cos / q_J (the BSDF's own weight for its own sample) and w'_J
+                w_lobe = self.heur.weights(q_b)
+                base = dr.select(own, w_own, safe_div(f, dr.select(use_1, q_b[0], q_b[1])))
+                w_cont = dr.select(own, 1.0, dr.select(use_1, w_lobe[0], w_lobe[1]))
+                ray_b = si.spawn_ray(si.to_world(bs.wo))
+                si_b = scene.ray_intersect(ray_b, act)
+                # emission: weighted over q_3 and the continuation's densities
+                L_e = vx.emission(scene, sel, si, si_b, q_b, delta, act, norm, index=first,
+                                  light_scale=p3)
+                L += dr.select(act, beta * base * L_e, 0.0)
+                beta = dr.select(act, beta * base * w_cont, 0.0)
+                eta *= bs.eta
                 ray = ray_b
                 si = si_b
             depth += 1
-            active = act_b
+            active = act
             beta, active = vx.roulette(beta, eta, depth, sampler, active)
             active &= si.is_valid() & (depth + 1 < max_depth)
         return L, valid, []

@@ -23,6 +23,8 @@ HEMISPHERE = ("uniform", "cosine", "bsdf")
 DIFFUSE = mi.BSDFFlags.DiffuseReflection | mi.BSDFFlags.DiffuseTransmission
 GLOSSY = (mi.BSDFFlags.GlossyReflection | mi.BSDFFlags.GlossyTransmission |
           mi.BSDFFlags.DeltaReflection | mi.BSDFFlags.DeltaTransmission | mi.BSDFFlags.Null)
+#: delta reflection, delta transmission and null (Mitsuba's ``Delta`` includes ``Null``)
+DELTA = mi.BSDFFlags.Delta
 
 
 def hemisphere_sample(mode: str, ctx, bsdf, si, s1, s2, active):
