@@ -127,7 +127,10 @@ def check_scene(scene, integrator_name: str, handles_media: bool = False) -> lis
                 f"{integrator_name} has no volumetric estimator; render media with Mitsuba's "
                 "'volpath' (or remove the medium)")
     for e in scene.emitters():
-        bad = _bad_values(e, keys_ok=lambda k: k != "sampling_weight")
+        # spectral variants store an RGB emitter as spectral-upsampling coefficients, which may
+        # be negative: only RGB and monochrome values can be checked for sign
+        bad = _bad_values(e, keys_ok=lambda k: k != "sampling_weight",
+                          negative_ok=bool(mi.is_spectral))
         if bad:
             raise SceneError(f"emitter {_name(e)}: parameter '{bad[0]}' = {bad[1]:g} is invalid; "
                              "allowed: finite values >= 0")
