@@ -39,6 +39,7 @@ class IntegratorTemplate:
         integrator's ``lights`` cache, when it has one)."""
         if getattr(self, "_prepared", None) is not scene:
             check_scene(scene, self.NAME, self.HANDLES_MEDIA)
+            self.scene_flags = scene_bsdf_flags(scene)
             for msg in self.scene_warnings(scene):
                 warnings.warn(msg, RuntimeWarning, stacklevel=2)
             self._prepared = scene
@@ -143,6 +144,17 @@ def check_scene(scene, integrator_name: str, handles_media: bool = False) -> lis
             raise SceneError(f"bsdf {_name(bsdf)} of shape {_name(shape)}: parameter '{bad[0]}' "
                              f"= {bad[1]:g} is invalid; allowed: finite values")
     return []
+
+
+def scene_bsdf_flags(scene) -> int:
+    """The union of the flags of every BSDF in ``scene`` (what its surfaces can do), so that an
+    estimator compiles no sampling call for a lobe no surface has."""
+    flags = 0
+    for shape in scene.shapes():
+        bsdf = shape.bsdf()
+        if bsdf is not None:
+            flags |= int(bsdf.flags())
+    return flags
 
 
 def has_delta_lights(scene) -> bool:

@@ -63,7 +63,7 @@ from ..common import any_flag, bsdf_at, bsdf_flags, channel_mean, depth_limit, i
 from ..params import Param, ParameterError
 from ..registry import plugin
 from ..sampling import light_selection, mis, roulette
-from ..sampling.techniques import DELTA, DIFFUSE, GLOSSY, lobe_contexts, lobe_densities
+from ..sampling.techniques import DELTA, DIFFUSE, GLOSSY, lobe_contexts
 from ..sampling.vertex import VertexEstimator
 from .base import HIDE_EMITTERS, MAX_DEPTH, IntegratorTemplate
 
@@ -121,11 +121,46 @@ class MIS3(IntegratorTemplate):
         inv = safe_div(1.0, r1 + r2 + r3)
         return r1 * inv, r2 * inv, r3 * inv
 
+    @staticmethod
+    def lobe_q(bsdf, si, wo, pi1, active, has_d: bool, has_g: bool):
+        """Effective densities (pi_1 p_1, pi_2 p_2) of the lobe techniques for ``wo`` (no pdf
+        call for a lobe no surface of the scene has)."""
+        _, ctx_d, ctx_g = lobe_contexts()
+        zero = mi.Float(0.0)
+        q_d = pi1 * bsdf.pdf(ctx_d, si, wo, active) if has_d else zero
+        q_g = (1.0 - pi1) * bsdf.pdf(ctx_g, si, wo, active) if has_g else zero
+        return q_d, q_g
+
+    @staticmethod
+    def continuation(bsdf, si, s1, s2, act, own, use_1, has_d: bool, has_g: bool,
+                     maybe_own: bool):
+        """The continuation's BSDF sample: the cosine lobe where ``use_1``, the BSDF's own
+        sample where ``own``, else the glossy lobe (only the calls the scene can need)."""
+        ctx, ctx_d, ctx_g = lobe_contexts()
+        if not is_jit():    # one lane: one call
+            ctx_j = ctx if own else (ctx_d if use_1 else ctx_g)
+            return bsdf.sample(ctx_j, si, s1, s2, act)
+        bs, w_own = dr.zeros(mi.BSDFSample3f), mi.Spectrum(0.0)
+        if has_g:
+            bs, _ = bsdf.sample(ctx_g, si, s1, s2, act & lnot(own | use_1))
+        if has_d:
+            bs_d, _ = bsdf.sample(ctx_d, si, s1, s2, act & use_1)
+            bs = dr.select(use_1, bs_d, bs)
+        if maybe_own:
+            bs_o, w_own = bsdf.sample(ctx, si, s1, s2, act & own)
+            bs = dr.select(own, bs_o, bs)
+        return bs, w_own
+
     @dr.syntax
     def sample(self, scene, sampler, ray, medium=None, active=True):
         ctx, ctx_d, ctx_g = lobe_contexts()
         vx = self.vertex
         sel = self.prepare(scene)
+        # what the scene's surfaces have (Python ints): no sampling call for what none has
+        has_d = bool(self.scene_flags & int(DIFFUSE))
+        has_g = bool(self.scene_flags & int(mi.BSDFFlags.Glossy))
+        maybe_own = bool(self.scene_flags & int(DELTA)) or \
+            min(self.p_cosine, self.p_glossy) == 0 or not (has_d or has_g)
         has_lights = sel.count > 0
         max_depth = depth_limit(self.max_depth)
         ray = mi.Ray3f(ray)
@@ -153,8 +188,7 @@ class MIS3(IntegratorTemplate):
                 norm = ls.norm
                 wo = si.to_local(ls.ds.d)
                 f, pdf_own = bsdf.eval_pdf(ctx, si, wo, ls.visible)
-                q_d, q_g = lobe_densities(bsdf, ctx_d, ctx_g, si, wo, pi1, 1.0 - pi1,
-                                          ls.visible & lnot(own))
+                q_d, q_g = self.lobe_q(bsdf, si, wo, pi1, ls.visible & lnot(own), has_d, has_g)
                 q_b = [dr.select(own, pdf_own, q_d), dr.select(own, 0.0, q_g)]
                 L += beta * safe_div(vx.light_term(ls, f, q_b, light_scale=p3), p3)
             else:
@@ -166,21 +200,13 @@ class MIS3(IntegratorTemplate):
             s1, s2 = sampler.next_1d(active), sampler.next_2d(active)
             act = mi.Bool(active)
             if is_jit() or act:
-                ctx_j = ctx
-                if not is_jit():
-                    ctx_j = ctx if own else (ctx_d if use_1 else ctx_g)
-                    bs, w_own = bsdf.sample(ctx_j, si, s1, s2, act)
-                else:
-                    bs_o, w_own = bsdf.sample(ctx, si, s1, s2, act & own)
-                    bs_d, _ = bsdf.sample(ctx_d, si, s1, s2, act & use_1)
-                    bs_g, _ = bsdf.sample(ctx_g, si, s1, s2, act & lnot(own | use_1))
-                    bs = dr.select(own, bs_o, dr.select(use_1, bs_d, bs_g))
+                bs, w_own = self.continuation(bsdf, si, s1, s2, act, own, use_1, has_d, has_g,
+                                              maybe_own)
                 delta = mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta)
                 act &= bs.pdf > 0
                 smooth_b = act & lnot(delta)
                 f = bsdf.eval(ctx, si, bs.wo, smooth_b & lnot(own))
-                q_d, q_g = lobe_densities(bsdf, ctx_d, ctx_g, si, bs.wo, pi1, 1.0 - pi1,
-                                          smooth_b & lnot(own))
+                q_d, q_g = self.lobe_q(bsdf, si, bs.wo, pi1, smooth_b & lnot(own), has_d, has_g)
                 q_b = [dr.select(own, bs.pdf, q_d), dr.select(own, 0.0, q_g)]
                 first = own | use_1                       # which entry of q_b sampled omega
                 # f cos / q_J (the BSDF's own weight for its own sample) and w'_J

@@ -8,8 +8,9 @@ r"""Direction-sampling techniques at a surface other than the BSDF's own ``sampl
 * **Lobe techniques** (``mis3``): any Mitsuba BSDF split by its component flags through
   ``BSDFContext.type_mask``: components with ``DiffuseReflection``/``DiffuseTransmission`` form
   the *cosine* technique; components with ``Glossy*``, ``Delta*`` or ``Null`` flags (a
-  ``null`` surface passes the ray on) form the *glossy* technique.  :func:`lobe_contexts` gives the two contexts; :func:`lobe_densities` the two pdfs
-  of a direction (for ``phong``, ``plastic``, ``roughplastic``: each lobe's own pdf).
+  ``null`` surface passes the ray on) form the *glossy* technique.  :func:`lobe_contexts` gives
+  the two contexts; with one of them a BSDF's ``pdf`` is that lobe's own pdf (``phong``,
+  ``plastic``, ``roughplastic``).
 """
 from __future__ import annotations
 
@@ -63,8 +64,3 @@ def lobe_contexts():
     ctx_d.type_mask = int(DIFFUSE)
     ctx_g.type_mask = int(GLOSSY)
     return ctx, ctx_d, ctx_g
-
-
-def lobe_densities(bsdf, ctx_d, ctx_g, si, wo, p_d, p_g, active):
-    """Effective densities (p_d p_cosine(wo), p_g p_glossy(wo)) of the two lobe techniques."""
-    return (p_d * bsdf.pdf(ctx_d, si, wo, active), p_g * bsdf.pdf(ctx_g, si, wo, active))
