@@ -56,6 +56,14 @@ def safe_div(a, b):
     return dr.select(nz, a / dr.select(nz, b, 1.0), 0.0)
 
 
+def luminance(spec):
+    """Luminance of a Spectrum (the mean over channels in spectral variants)."""
+    s = mi.unpolarized_spectrum(spec)
+    if mi.is_rgb:
+        return mi.luminance(s)
+    return dr.mean(s, axis=0)
+
+
 def channel_mean(spec):
     """Mean over the spectral channels of a Spectrum (one Float per lane)."""
     s = mi.unpolarized_spectrum(spec)

@@ -63,11 +63,11 @@ class DirectMIS(IntegratorTemplate):
                 L += vx.light_estimate(scene, sel, sampler, ctx, si, bsdf, active)
             return L, valid, []
         # the light samples and the first BSDF sample, then the other N_b - 1 BSDF samples
-        L_l, bs, weight, norm = vx.direct(scene, sel, sampler, ctx, si, bsdf, active)
-        L_b = self.bsdf_hit(scene, sel, si, bs, weight, active, norm)
+        d = vx.direct(scene, sel, sampler, ctx, si, bsdf, active)
+        L_b = self.bsdf_hit(scene, sel, si, d.bs, d.weight, active, d.norm)
         if n_b > 1:
             L_b += self.more_bsdf_samples(scene, sel, sampler, ctx, si, bsdf, active)
-        return L + L_l + L_b / n_b, valid, []
+        return L + d.L + L_b / n_b, valid, []
 
     def bsdf_hit(self, scene, sel, si, bs, weight, active, norm=None):
         """Emission found by one BSDF sample, MIS-weighted (not divided by N_b)."""

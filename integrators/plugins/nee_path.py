@@ -28,7 +28,7 @@ import dataclasses
 import drjit as dr
 import mitsuba as mi
 
-from ..common import bsdf_at, depth_limit
+from ..common import depth_limit
 from ..params import MAX_COUNT, Param
 from ..registry import plugin
 from ..sampling import light_selection, mis, roulette
@@ -75,32 +75,7 @@ class NEEPath(IntegratorTemplate):
             L += acc * roulette.split_weight(self.split)
         return L, valid, []
 
-    @dr.syntax
     def reflected(self, scene, sampler, sel, ray, si, active):
         """One path's estimate of the light reflected at the first hit ``si`` (its emission
-        excluded)."""
-        ctx = mi.BSDFContext()
-        vx = self.vertex
-        max_depth = depth_limit(self.max_depth)
-        L = mi.Spectrum(0.0)
-        beta = mi.Spectrum(1.0)
-        eta = mi.Float(1.0)
-        depth = mi.UInt32(0)
-        active = mi.Bool(active)
-
-        while dr.hint(active, label="nee_path"):
-            bsdf = bsdf_at(si, ray, active)
-            L_l, bs, weight, norm = vx.direct(scene, sel, sampler, ctx, si, bsdf, active)
-            L += beta * L_l
-            beta *= weight
-            eta *= bs.eta
-            depth += 1
-            beta, active = vx.roulette(beta, eta, depth, sampler, active)
-            si_prev = si
-            ray = si.spawn_ray(si.to_world(bs.wo))
-            si = scene.ray_intersect(ray, active)
-            delta = mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta)
-            L_e = vx.emission(scene, sel, si_prev, si, [bs.pdf], delta, active, norm)
-            L += dr.select(active, beta * L_e, 0.0)
-            active &= si.is_valid() & (depth + 1 < max_depth)
-        return L
+        excluded): the shared per-vertex estimator at every vertex."""
+        return self.vertex.path(scene, sampler, sel, ray, si, active, self.max_depth)

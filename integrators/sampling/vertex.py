@@ -32,9 +32,20 @@ from typing import NamedTuple, Sequence
 import drjit as dr
 import mitsuba as mi
 
-from ..common import bsdf_flags, emitted, is_jit, lnot
+from ..common import bsdf_at, bsdf_flags, depth_limit, emitted, is_jit, lnot, safe_div
 from .mis import Heuristic
 from .roulette import Roulette
+
+
+class Direct(NamedTuple):
+    """What :meth:`VertexEstimator.direct` computes at a vertex."""
+    L: "mi.Spectrum"             # the light-sample estimate (MIS-weighted)
+    bs: "mi.BSDFSample3f"        # the BSDF sample
+    weight: "mi.Spectrum"        # its f cos / p_b
+    norm: object                 # the light selection's normaliser, for emission()
+    ls: "LightSample | None"     # the light sample (N_l = 1)
+    f_l: "mi.Spectrum | None"    # f cos of the light sample's direction (N_l = 1)
+    pdf_l: "mi.Float | None"     # the BSDF's pdf of that direction (N_l = 1)
 
 
 class LightSample(NamedTuple):
@@ -99,53 +110,111 @@ class VertexEstimator:
         return L / self.n_l
 
     # ---- 2. light samples and the BSDF sample together --------------------------------------
-    def direct(self, scene, sel, sampler, ctx, si, bsdf, active):
-        """The light-sample estimate at ``si`` and one BSDF sample.
+    def direct(self, scene, sel, sampler, ctx, si, bsdf, active, p_light=None) -> Direct:
+        """The light-sample estimate at ``si`` and one BSDF sample (:class:`Direct`).
 
-        Returns (L_light, bs, f cos / p_b, norm); ``norm`` goes to :meth:`emission` for the
-        emission that ``bs`` finds.  No shadow rays where the BSDF has no smooth lobe."""
+        ``norm`` goes to :meth:`emission` for the emission that ``bs`` finds.  No shadow rays
+        where the BSDF has no smooth lobe.  With ``p_light`` (N_l = 1 only; a Float per lane)
+        the light sample is taken with that probability and weighted for it (its effective
+        density p_light p_l, the estimate divided by p_light): stochastic next-event
+        estimation, unbiased for any p_light > 0."""
         n_l = self.n_l if sel.count > 0 else 0
         smooth = active & mi.has_flag(bsdf_flags(bsdf), mi.BSDFFlags.Smooth)
         if n_l == 1:
+            if p_light is not None:
+                smooth &= sampler.next_1d(active) < p_light
             ls = self.light_sample(scene, sel, sampler, si, smooth)
             s1, s2 = sampler.next_1d(active), sampler.next_2d(active)
             if bsdf is None:
-                return (mi.Spectrum(0.0), *no_bsdf_sample(), ls.norm)
+                return Direct(mi.Spectrum(0.0), *no_bsdf_sample(), ls.norm, ls, None, None)
             f_l, pdf_l, bs, weight = bsdf.eval_pdf_sample(ctx, si, si.to_local(ls.ds.d),
                                                           s1, s2, active)
-            return self.light_term(ls, f_l, [self.n_b * pdf_l]), bs, weight, ls.norm
+            if p_light is None:
+                L = self.light_term(ls, f_l, [self.n_b * pdf_l])
+            else:
+                L = safe_div(self.light_term(ls, f_l, [self.n_b * pdf_l], p_light), p_light)
+            return Direct(L, bs, weight, ls.norm, ls, f_l, pdf_l)
         L = mi.Spectrum(0.0)
         if n_l > 0:
             L = self.light_estimate(scene, sel, sampler, ctx, si, bsdf, smooth)
         s1, s2 = sampler.next_1d(active), sampler.next_2d(active)
         if bsdf is None:
-            return (L, *no_bsdf_sample(), None)
+            return Direct(L, *no_bsdf_sample(), None, None, None, None)
         bs, weight = bsdf.sample(ctx, si, s1, s2, active)
-        return L, bs, weight, None
+        return Direct(L, bs, weight, None, None, None, None)
 
     # ---- 3. emission found by a BSDF sample ------------------------------------------------
     def emission(self, scene, sel, si_prev, si, q_bsdf: Sequence, delta, active, norm=None,
-                 index=0, light_scale=None):
+                 index=0, light_scale=None, with_light_pdf: bool = False):
         """L_e at ``si`` (reached from ``si_prev`` by BSDF technique ``index``) times its MIS
         weight over the light technique and the BSDF techniques' densities ``q_bsdf``
         (weight 1 after a delta lobe, or without light sampling).  ``index`` is an int, or,
-        with two BSDF techniques, a mask: technique 0 where true, 1 elsewhere."""
+        with two BSDF techniques, a mask: technique 0 where true, 1 elsewhere.
+        ``with_light_pdf``: return (weighted L_e, L_e, the light technique's pdf p_l)."""
         scale = self.n_l if light_scale is None else light_scale
         L_e = emitted(scene, si, active)
+        pdf_l = mi.Float(0.0)
         if isinstance(scale, (int, float)) and scale == 0 or sel.count == 0:
-            if len(q_bsdf) == 1:
-                return L_e
-            w = self.heur.weights(list(q_bsdf))
+            w = self.heur.weights(list(q_bsdf)) if len(q_bsdf) > 1 else [mi.Float(1.0)]
         else:
-            q_l = scale * sel.pdf_direction(si_prev, si, active & lnot(delta), norm)
-            w = self.heur.weights([q_l, *q_bsdf])[1:]
+            pdf_l = sel.pdf_direction(si_prev, si, active & lnot(delta), norm)
+            w = self.heur.weights([scale * pdf_l, *q_bsdf])[1:]
         if isinstance(index, bool):      # a mask in scalar variants
             w = w[0] if index else w[1]
         elif isinstance(index, int):
             w = w[index]
         else:
             w = dr.select(index, w[0], w[1])
-        return L_e * dr.select(delta, 1.0, w)
+        weighted = L_e * dr.select(delta, 1.0, w)
+        return (weighted, L_e, pdf_l) if with_light_pdf else weighted
+
+    # ---- the path: the vertex estimate at every vertex ----------------------------------------
+    @dr.syntax
+    def path(self, scene, sampler, sel, ray, si, active, max_depth: int, learner=None):
+        """One path's estimate of the light reflected at its first hit ``si`` (the emission
+        seen there excluded): at every vertex beta [light estimate + weighted emission found by
+        the BSDF sample], then roulette.  ``learner`` (optional) gives each vertex its
+        light-sample probability (``learner.light_probability(si, sampler, active)`` -> (p, where
+        to record)) and
+        is told what the light sample and the BSDF sample found (``record_light``,
+        ``record_hit``), so it can learn that probability per region between passes."""
+        ctx = mi.BSDFContext()
+        limit = depth_limit(max_depth)
+        L = mi.Spectrum(0.0)
+        beta = mi.Spectrum(1.0)
+        eta = mi.Float(1.0)
+        depth = mi.UInt32(0)
+        active = mi.Bool(active)
+        learn = learner is not None
+
+        while dr.hint(active, label="path"):
+            bsdf = bsdf_at(si, ray, active)
+            p_l, cell = None, None
+            if dr.hint(learn, mode="scalar"):
+                p_l, cell = learner.light_probability(si, sampler, active)
+            d = self.direct(scene, sel, sampler, ctx, si, bsdf, active, p_l)
+            L += beta * d.L
+            if dr.hint(learn, mode="scalar"):
+                learner.record_light(cell, beta, d, p_l)
+            beta_prev = beta
+            beta *= d.weight
+            eta *= d.bs.eta
+            depth += 1
+            beta, active = self.roulette(beta, eta, depth, sampler, active)
+            si_prev = si
+            ray = si.spawn_ray(si.to_world(d.bs.wo))
+            si = scene.ray_intersect(ray, active)
+            delta = mi.has_flag(d.bs.sampled_type, mi.BSDFFlags.Delta)
+            scale = p_l if learn else None
+            L_w, L_e, pdf_e = self.emission(scene, sel, si_prev, si, [self.n_b * d.bs.pdf],
+                                            delta, active, d.norm, light_scale=scale,
+                                            with_light_pdf=True)
+            L += dr.select(active, beta * L_w, 0.0)
+            if dr.hint(learn, mode="scalar"):
+                learner.record_hit(cell, beta_prev * d.weight, L_e, pdf_e, d.bs.pdf, p_l,
+                                   active & lnot(delta))
+            active &= si.is_valid() & (depth + 1 < limit)
+        return L
 
     # ---- 4. roulette ----------------------------------------------------------------------
     def roulette(self, beta, eta, depth, sampler, active):
