@@ -21,7 +21,11 @@ from __future__ import annotations
 
 import os as _os
 
-from . import _llvm
+from .app import interrupt as _interrupt
+
+_interrupt.early()   # python -m integrators: SIGINT/SIGTERM are one line from here on, not tracebacks
+
+from . import _llvm  # noqa: E402
 
 LLVM_PATH = _llvm.configure()
 

@@ -57,7 +57,17 @@ def test_bad_input_is_one_clear_line(args, needle):
     r = cli(*args)
     assert r.returncode == 2, (r.returncode, r.stderr)
     assert needle in r.stderr, r.stderr
-    assert "Traceback" not in r.stderr
+    assert "Traceback" not in r.stderr and len(r.stderr.splitlines()) == 1, r.stderr
+
+
+def test_usage_errors_are_one_line_without_the_usage_block():
+    """argparse's usage block is gone: one line, status 2 (the corpus has many more)."""
+    for args in (["render", SCENE, "--spp", "0"], ["render"], [], ["render", SCENE, "--sp", "8"]):
+        r = cli(*args)
+        assert r.returncode == 2 and len(r.stderr.splitlines()) == 1, r.stderr
+        assert r.stderr.startswith("error: ") and "usage:" not in r.stderr
+    r = cli("render", "--help")
+    assert r.returncode == 0 and "usage:" in r.stdout
 
 
 def test_malformed_scene_names_file_and_line(tmp_path):

@@ -133,3 +133,63 @@ def test_variance_layer_predicts_the_error_between_runs():
 def test_bad_time_arguments(args, needle):
     r = cli("render", SCENE, *args)
     assert r.returncode == 2 and needle in r.stderr, r.stderr
+
+
+# ---- refusals up front, seeds, films (issue 12) ---------------------------------------------
+def _tiny(**kw):
+    return mi.load_file(str(ROOT / "scenes" / "cornell_box.xml"), res=str(kw.get("res", 8)))
+
+
+def test_seeds_stay_32_bit():
+    scene = _tiny()
+    top = progressive.MAX_SEED
+    with pytest.raises(progressive.RenderError, match="past the largest seed 4294967295; use a "
+                                                      "seed <= 4294967288"):
+        progressive.render(scene, spp=8, seed=top)     # 8 passes of 1 spp
+    acc = progressive.render(scene, spp=8, seed=top - 7)
+    assert (acc.seed_first, acc.seed_last, acc.passes) == (top - 7, top, 8)
+    # with a time budget the render stops after the pass with the last seed, and says so
+    acc = progressive.render(scene, time_budget=60, seed=top - 1)
+    assert (acc.passes, acc.seed_last, acc.stopped) == (2, top, "seeds")
+    for bad in (-1, top + 1, 1.5, True):
+        with pytest.raises(progressive.RenderError, match="seed"):
+            progressive.render(scene, spp=1, seed=bad)
+    for bad in (0, -3, progressive.MAX_SPP + 1, 2.0):
+        with pytest.raises(progressive.RenderError, match="spp"):
+            progressive.render(scene, spp=bad)
+
+
+FILM = """<scene version="3.0.0"><integrator type="nee_path"/>
+<sensor type="orthographic"><film type="hdrfilm"><integer name="width" value="{w}"/>
+<integer name="height" value="{h}"/><string name="pixel_format" value="{fmt}"/></film></sensor>
+<emitter type="constant"/><shape type="sphere"/></scene>"""
+
+
+def test_film_checks_and_pass_size(monkeypatch):
+    cap = progressive.MAX_SAMPLES_PER_PASS
+    assert progressive.pass_size(4096, 4096, 100) == (1, 1)
+    assert progressive.pass_size(64, 64, 10_000) == (1250, cap // 4096)
+    assert progressive.pass_size(64, 64, None) == (1, cap // 4096)
+    for w, h, what in ((0, 8, "no pixels"), (8, 0, "no pixels"),
+                       (4097, 4096, "more than a pass may hold")):
+        with pytest.raises(progressive.RenderError, match=what):
+            progressive.check_film(mi.load_string(FILM.format(w=w, h=h, fmt="rgb")))
+    scene = mi.load_string(FILM.format(w=512, h=512, fmt="rgb"))
+    assert progressive.check_film(scene) == (512, 512)
+    monkeypatch.setattr(progressive, "memory_available", lambda: 10 << 20)
+    with pytest.raises(progressive.RenderError, match=r"needs about 31 MiB of memory \(124 bytes "
+                                                      r"per pixel\); 10 MiB are available"):
+        progressive.check_film(scene)
+    assert progressive.film_channels(mi.load_string(FILM.format(w=8, h=8, fmt="luminance"))) == 1
+    assert progressive.bytes_per_pixel(3) == 124        # measured: about 126 (README)
+
+
+@pytest.mark.parametrize("fmt,names", [("luminance", ("Y",)), ("rgb", ("R", "G", "B")),
+                                       ("xyza", ("X", "Y", "Z", "A"))])
+def test_film_channels_carried_to_the_file(fmt, names, tmp_path):
+    acc = progressive.render(mi.load_string(FILM.format(w=6, h=4, fmt=fmt)), spp=2)
+    assert acc.channels == names and acc.s.shape == (4, 6, len(names))
+    progressive.write(tmp_path / "a.exr", acc, preview=True)
+    back = progressive.read(tmp_path / "a.exr")
+    assert back.channels == names and np.allclose(back.mean(), acc.mean(), rtol=1e-6)
+    assert (tmp_path / "a.png").is_file()

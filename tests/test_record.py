@@ -184,3 +184,61 @@ def test_legacy_header_without_run_record():
     assert (rec.spp, rec.passes, rec.seed_ranges, rec.seconds) == (16, 8, [[0, 7]], 1.5)
     with pytest.raises(KeyError):
         RunRecord.from_header({"spp": 1})
+
+
+# ---- writing outputs: groups replaced together, real I/O errors, stale temporaries ------------
+def test_channel_names_round_trip(tmp_path):
+    from integrators.app.imageio import read_layers_named
+    for names, n in (("Y", 1), ("YA", 2), ("XYZ", 3), ("XYZA", 4), (None, 5)):
+        img = np.random.default_rng(n).random((3, 4, n)).astype(np.float32)
+        write_layers(tmp_path / "c.exr", {"": img, "variance": img}, channels=names)
+        layers, _, got = read_layers_named(tmp_path / "c.exr")
+        expect = tuple(names) if names else ("C0", "C1", "C2", "C3", "C4")
+        assert got[""] == expect and got["variance"] == expect
+        assert np.array_equal(layers[""], img)
+
+
+def test_group_is_replaced_together_or_not_at_all(tmp_path, monkeypatch):
+    from integrators.app.imageio import WriteError, write_together
+    a, b = tmp_path / "x.exr", tmp_path / "x.png"
+
+    def text(s):
+        return lambda tmp: Path(tmp).write_text(s)
+    write_together([(a, text("old a")), (b, text("old b"))])
+    for fault in ("png-rename:EIO", "png-write", "exr-write:EDQUOT", "exr-rename:EXDEV"):
+        monkeypatch.setenv("INTEGRATORS_TEST_FAULT", fault)
+        with pytest.raises(WriteError) as e:
+            write_together([(a, text("new a")), (b, text("new b"))])
+        assert str(e.value).startswith(f"cannot write {a if 'exr' in fault else b}: ")
+        assert "\n" not in str(e.value) and ".x." not in str(e.value)
+        assert (a.read_text(), b.read_text()) == ("old a", "old b")
+        assert sorted(p.name for p in tmp_path.iterdir()) == ["x.exr", "x.png"]
+    monkeypatch.delenv("INTEGRATORS_TEST_FAULT")
+    write_together([(a, text("new a")), (b, text("new b"))])
+    assert (a.read_text(), b.read_text()) == ("new a", "new b")
+
+
+def test_write_errors_are_os_errors_not_silent(tmp_path):
+    """OpenEXR and Mitsuba's writers report success on a full disk (leaving empty files):
+    bytes go through Python's I/O, which raises."""
+    from integrators.app.imageio import write_bytes
+    with pytest.raises(OSError) as e:
+        write_bytes("/dev/full", b"x" * 100_000)
+    assert e.value.errno == 28
+
+
+def test_stale_temporaries_of_dead_processes_only(tmp_path):
+    import time as _time
+    from integrators.app.imageio import remove_stale_temporaries
+    dead = subprocess.Popen([sys.executable, "-c", "pass"])
+    dead.wait()
+    names = {f".r.{dead.pid}.abc_123.exr": True, f".r.{dead.pid}.abc_123.bak.exr": True,
+             f".r.{os.getpid()}.abc_123.exr": False, f".r.{dead.pid}.abc_123.png": False,
+             ".r.x1y2z3w4.exr": True, ".r.x1y2z3w5.exr": False, "r.exr": False,
+             f".r.1.{dead.pid}.abc.exr": False}
+    for n in names:
+        (tmp_path / n).write_text("x")
+    old = _time.time() - 7200
+    os.utime(tmp_path / ".r.x1y2z3w4.exr", (old, old))
+    removed = remove_stale_temporaries(tmp_path / "r.exr")
+    assert sorted(removed) == sorted(n for n, stale in names.items() if stale)
