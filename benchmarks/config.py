@@ -50,10 +50,19 @@ PATH_METHODS = (
     Method("nee_path_adaptive", "path",
            {"type": "nee_path", "max_depth": PATH_DEPTH, "light_selection": "adaptive"},
            "our `nee_path`, adaptive light selection (per-point irradiance bound)"),
+    Method("mis3", "path", {"type": "mis3", "max_depth": PATH_DEPTH},
+           "our `mis3` with its defaults (the lecture's p-vector 1/3 each: a light sample with "
+           "probability 1/3, every path continues), balance heuristic"),
     Method("mis3_adaptive", "path",
            {"type": "mis3", "max_depth": PATH_DEPTH, "selection": "adaptive"},
            "our `mis3` (one-sample MIS over cosine lobe, glossy lobe and light), technique "
            "probabilities adapted per vertex, balance heuristic"),
+    Method("mis3_learned", "path",
+           {"type": "mis3", "max_depth": PATH_DEPTH, "selection": "learned",
+            "light_selection": "adaptive"},
+           "our `mis3`, light-sample probability learned per region over the passes (each "
+           "budget's renders continue learning: learning passes are in the time), adaptive "
+           "light selection"),
     Method("bsdf_path", "path", {"type": "bsdf_path", "max_depth": PATH_DEPTH},
            "our `bsdf_path`, BSDF sampling only (no light sampling)"),
 )
@@ -130,6 +139,7 @@ SCENES = {
     "small_light": Scene(_res_defines, (0.62, 0.5), STABILITY_LABELS, 1),
     "sharp_glossy": Scene(_res_defines, (0.5, 0.78), STABILITY_LABELS, 1),
     "furnace": Scene(_res_defines, (0.8, 0.5), (), 8),
+    "specular_box": Scene(_res_defines, (0.33, 0.72), (), 4),
 }
 
 # the stability study's stated bound: MIS (1 light + 1 BSDF sample) is at least 1/STABILITY_FACTOR

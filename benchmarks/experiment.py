@@ -44,6 +44,7 @@ class Worker:
         for m in self.methods:
             self.groups.setdefault(m.group, []).append(m)
         self.integ = {m.label: mi.load_dict(dict(m.integrator)) for m in self.methods}
+        self.method = {m.label: m for m in self.methods}
         self.flip = Flip()
         self.seed = 10
         self.emitter_mask = self.emitter_pixels()
@@ -99,8 +100,18 @@ class Worker:
         return self.seed
 
     def _render(self, spp):
-        """render(label, seed) -> (image, seconds) at ``spp`` for :func:`timing.round_robin`."""
-        return lambda label, seed: timing.timed_render(self.scene, self.integ[label], spp, seed)
+        """render(label, seed) -> (image, seconds) at ``spp`` for :func:`timing.round_robin`.
+
+        A method that learns between passes (``mis3`` with ``selection=learned``) starts each
+        render from a fresh integrator and renders in passes (:func:`timing.learned_render`), so
+        its learning is in the measured time and nothing learned in one render helps another."""
+        def render(label, seed):
+            m = self.method[label]
+            if m.integrator.get("selection") == "learned":
+                return timing.timed(timing.learned_render, self.scene,
+                                    self.mi.load_dict(dict(m.integrator)), spp, seed)
+            return timing.timed_render(self.scene, self.integ[label], spp, seed)
+        return render
 
     def _rgb(self, img):
         return self.np.array(img, dtype=self.np.float64)[..., :3]

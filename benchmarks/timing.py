@@ -44,6 +44,23 @@ def timed(fn: Callable, *args, **kw):
     return out, time.perf_counter() - t0
 
 
+def learned_render(scene, integrator, spp: int, seed: int, passes: int = 4, sensor: int = 0):
+    """A render of ``spp`` samples per pixel in ``passes`` passes (fewer when spp is smaller),
+    for an integrator that learns between passes: the sample-weighted mean image."""
+    import drjit as dr
+    import mitsuba as mi
+    n = max(1, min(int(passes), int(spp)))
+    sizes = [spp // n + (1 if k < spp % n else 0) for k in range(n)]
+    acc = None
+    for k, m in enumerate(sizes):
+        img = mi.render(scene, integrator=integrator, spp=m, seed=int(seed) * 64 + k,
+                        sensor=sensor) * (m / spp)
+        acc = img if acc is None else acc + img
+    dr.eval(acc)
+    dr.sync_thread()
+    return acc
+
+
 @dataclass
 class Timings:
     """Seconds per configuration: ``timed`` (the timed rounds, in round order) and ``warmup``."""
