@@ -5,7 +5,10 @@
 * :func:`point_light_irradiance` - inverse-square law with the cosine;
 * :func:`closed_sphere_radiance` / :func:`closed_box_radiance` - the geometric series inside a
   closed diffuse enclosure that emits everywhere (truncated at ``max_depth``);
-* :func:`furnace_radiance` - a convex object of albedo rho in a constant environment.
+* :func:`furnace_radiance` - a convex object of albedo rho in a constant environment;
+* :func:`fresnel_dielectric`, :func:`thin_dielectric_reflectance` and
+  :func:`sphere_interface_radiance` - a lossless (smooth or thin dielectric) sphere in a constant
+  environment, truncated at ``max_depth``.
 """
 from __future__ import annotations
 
@@ -67,3 +70,40 @@ def furnace_radiance(rho: float, env: float = 1.0) -> float:
     """A convex object of (energy-conserving, white-furnace) albedo rho in a constant
     environment ``env``: L = rho env (plus nothing from inter-reflection: it is convex)."""
     return rho * env
+
+
+def fresnel_dielectric(cos_i: float, eta: float) -> float:
+    """Unpolarised Fresnel reflectance of a smooth dielectric interface for light arriving at
+    ``cos_i`` > 0 from the side of index n_i, ``eta`` = n_t / n_i (1 under total internal
+    reflection)."""
+    sin_t2 = (1.0 - cos_i * cos_i) / (eta * eta)
+    if sin_t2 >= 1.0:
+        return 1.0
+    cos_t = math.sqrt(1.0 - sin_t2)
+    rs = (cos_i - eta * cos_t) / (cos_i + eta * cos_t)
+    rp = (eta * cos_i - cos_t) / (eta * cos_i + cos_t)
+    return 0.5 * (rs * rs + rp * rp)
+
+
+def thin_dielectric_reflectance(cos_i: float, eta: float) -> float:
+    """Reflectance of a thin dielectric sheet (both faces and every inter-reflection between
+    them): R = 2 F / (1 + F), F the Fresnel reflectance of one face; it transmits 1 - R."""
+    f = fresnel_dielectric(cos_i, eta)
+    return 2.0 * f / (1.0 + f)
+
+
+def sphere_interface_radiance(r: float, max_depth: int = -1, env: float = 1.0) -> float:
+    """Radiance seen on a lossless sphere in a constant environment ``env`` whose surface
+    reflects a fraction ``r`` and transmits 1 - r at every hit (a smooth or thin dielectric
+    sphere, radiance in units of the outside medium).
+
+    Inside a sphere every chord meets the surface at the same angle at both ends, so every hit
+    of a path sees the same r: the path escapes at its first hit by reflection (r), or enters
+    and escapes after k internal reflections ((1 - r)^2 r^k, k + 3 path vertices counting the
+    environment).  Truncated at ``max_depth`` (Mitsuba's counting; -1: the whole series, which
+    sums to ``env``: nothing is lost)."""
+    if max_depth < 0:
+        return env
+    if max_depth < 2:
+        return 0.0
+    return env * (r + (1.0 - r) ** 2 * sum(r ** k for k in range(max_depth - 2)))

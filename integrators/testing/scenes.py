@@ -5,7 +5,9 @@ Two levels:
 
 * one-call cases returning :class:`ClosedForm` ``(scene, expected)`` for one sensor, ready for
   :func:`integrators.testing.assert_unbiased`: :func:`closed_box`, :func:`closed_sphere`,
-  :func:`polygon_light_plane`, :func:`furnace`;
+  :func:`polygon_light_plane`, :func:`furnace`, and the lossless white furnaces
+  :func:`dielectric_furnace` (smooth or thin glass), :func:`mirror_furnace` and
+  :func:`back_face_furnace` (a two-sided BSDF seen from its back);
 * the building blocks: :func:`closed_box_scene`, :func:`closed_sphere_scene`,
   :func:`furnace_scene` (dicts) and :func:`plane_scene` (dict and one expected value per sensor).
 
@@ -20,8 +22,9 @@ from typing import NamedTuple, Union
 import mitsuba as mi
 import numpy as np
 
-from .closed_forms import (closed_sphere_radiance, furnace_radiance, lambert_polygon_irradiance,
-                           point_light_irradiance, rectangle_vertices)
+from .closed_forms import (closed_sphere_radiance, fresnel_dielectric, furnace_radiance,
+                           lambert_polygon_irradiance, point_light_irradiance, rectangle_vertices,
+                           sphere_interface_radiance, thin_dielectric_reflectance)
 from .stats import radiancemeter
 
 #: albedo of the diffuse plane of :func:`plane_scene`
@@ -84,11 +87,28 @@ def plane_scene(rects=RECTS, points=(), sensors_at=POINTS, spp=4096, bsdf=None, 
     return d, expected
 
 
-def furnace_scene(bsdf, env=1.0, spp=4096):
-    """Unit sphere in a constant environment, one radiancemeter looking at it."""
-    return {"type": "scene", "env": {"type": "constant", "radiance": env},
-            "ball": {"type": "sphere", "bsdf": bsdf},
-            "sensor": radiancemeter((0.0, 0.0, 1.0), (0.5, 0.3, 3.0), spp)}
+#: where :func:`furnace_scene` looks from, relative to its target (0, 0, 1) on the unit sphere
+FURNACE_VIEW = (0.5, 0.3, 2.0)
+#: an oblique view (cos 0.36 to the normal: the smooth dielectric of eta 1.5 reflects 16 %)
+OBLIQUE_VIEW = (1.5, 0.4, 0.6)
+
+
+def furnace_scene(bsdf, env=1.0, spp=4096, flip_normals=False, view=FURNACE_VIEW):
+    """Unit sphere in a constant environment, one radiancemeter looking at its point (0, 0, 1)
+    from ``(0, 0, 1) + view``.  ``flip_normals``: the sphere's normals point inwards, so the
+    radiancemeter sees the back side of its BSDF."""
+    ball = {"type": "sphere", "bsdf": bsdf}
+    if flip_normals:
+        ball["flip_normals"] = True
+    return {"type": "scene", "env": {"type": "constant", "radiance": env}, "ball": ball,
+            "sensor": radiancemeter((0.0, 0.0, 1.0), np.add((0.0, 0.0, 1.0), view), spp)}
+
+
+def view_cosine(view=FURNACE_VIEW) -> float:
+    """Cosine between the normal at (0, 0, 1) and the direction to the radiancemeter of
+    :func:`furnace_scene`."""
+    v = np.asarray(view, float)
+    return float(v[2] / np.linalg.norm(v))
 
 
 def closed_sphere_scene(rho, le, spp=4096):
@@ -148,3 +168,49 @@ def furnace(rho=0.6, env=1.0, bsdf=None, spp=4096) -> ClosedForm:
     (a dict) only for a BSDF whose directional albedo is exactly ``rho``."""
     bsdf = bsdf or {"type": "diffuse", "reflectance": rho}
     return ClosedForm(furnace_scene(bsdf, env, spp), furnace_radiance(rho, env))
+
+
+# ---------------------------------------------------------------------------------------------
+# white furnaces: lossless or back-facing surfaces in a constant environment
+def dielectric_furnace(eta=1.5, max_depth=-1, thin=False, env=1.0, spp=4096,
+                       view=OBLIQUE_VIEW) -> ClosedForm:
+    """A smooth (``dielectric``) or thin (``thindielectric``) glass sphere of relative index
+    ``eta`` in a constant environment ``env``: lossless, so L = env at unlimited depth; truncated
+    at ``max_depth``, L = env (r + (1-r)^2 sum_{k < max_depth-2} r^k) with r the reflectance at
+    the viewing angle (:func:`~integrators.testing.closed_forms.sphere_interface_radiance`)."""
+    cos_i = view_cosine(view)
+    if thin:
+        bsdf = {"type": "thindielectric", "int_ior": float(eta), "ext_ior": 1.0}
+        r = thin_dielectric_reflectance(cos_i, eta)
+    else:
+        bsdf = {"type": "dielectric", "int_ior": float(eta), "ext_ior": 1.0}
+        r = fresnel_dielectric(cos_i, eta)
+    return ClosedForm(furnace_scene(bsdf, env, spp, view=view),
+                      sphere_interface_radiance(r, max_depth, env))
+
+
+def mirror_furnace(max_depth=-1, env=1.0, spp=4096, view=OBLIQUE_VIEW) -> ClosedForm:
+    """A perfect mirror sphere (``conductor`` with ``material`` none: reflectance 1) in a
+    constant environment: L = env from ``max_depth`` 2 on (a convex mirror reflects every ray
+    straight to the environment), 0 at ``max_depth`` 1."""
+    bsdf = {"type": "conductor", "material": "none"}
+    return ClosedForm(furnace_scene(bsdf, env, spp, view=view),
+                      env if (max_depth < 0 or max_depth >= 2) else 0.0)
+
+
+def back_face_furnace(front=0.2, back=0.7, max_depth=-1, env=1.0, spp=4096,
+                      view=OBLIQUE_VIEW, twosided=True) -> ClosedForm:
+    """A sphere with inward normals (``flip_normals``) in a constant environment, seen from
+    outside: the radiancemeter sees the back side of its BSDF, a ``twosided`` pair of diffuse
+    BSDFs (albedo ``front`` on the front side, ``back`` on the back side).  The sphere is
+    convex, so L = back env from ``max_depth`` 2 on.  ``twosided=False``: a one-sided diffuse
+    BSDF of albedo ``front``, black from the back (L = 0)."""
+    if twosided:
+        bsdf = {"type": "twosided", "front": {"type": "diffuse", "reflectance": front},
+                "back": {"type": "diffuse", "reflectance": back}}
+        value = back * env
+    else:
+        bsdf = {"type": "diffuse", "reflectance": front}
+        value = 0.0
+    return ClosedForm(furnace_scene(bsdf, env, spp, flip_normals=True, view=view),
+                      value if (max_depth < 0 or max_depth >= 2) else 0.0)
