@@ -102,7 +102,7 @@ def test_mis3_other_settings_through_specular_chains(scene, extra):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("extra", [{"rr": "fixed", "rr_depth": 1},
+@pytest.mark.parametrize("extra", [{"rr": "fixed", "rr_prob": 0.2, "rr_depth": 2},
                                    {"light_samples": 3, "heuristic": "balance", "split": 2}])
 def test_nee_path_other_settings_through_specular_chains(scene, extra):
     assert_unbiased(scene, reference(scene, DEPTH), {"type": "nee_path", "max_depth": DEPTH,
