@@ -55,6 +55,8 @@ class IntegratorTemplate:
 
         With ``hide_emitters`` (as Mitsuba's integrators), area emitters are transparent to
         camera rays (the ray goes on to what is behind them) and the environment is black."""
+        if self.params.get("max_depth", -1) == 0:   # Mitsuba's meaning: nothing at all
+            return scene.ray_intersect(ray, active), mi.Spectrum(0.0)
         if not self.params.get("hide_emitters", False):
             si = scene.ray_intersect(ray, active)
             return si, emitted(scene, si, active)

@@ -249,22 +249,25 @@ class MIS3(IntegratorTemplate):
     @staticmethod
     def continuation(bsdf, si, s1, s2, act, own, use_1, has_d: bool, has_g: bool,
                      maybe_own: bool):
-        """The continuation's BSDF sample: the cosine lobe where ``use_1``, the BSDF's own
-        sample where ``own``, else the glossy lobe (only the calls the scene can need)."""
+        """The continuation's BSDF sample and the weight the BSDF gave it: the cosine lobe where
+        ``use_1``, the BSDF's own sample where ``own``, else the glossy lobe (only the calls the
+        scene can need).  The weight is used as f/pdf for ``own`` samples, and for every
+        sample as the BSDF's verdict on it: a zero weight with a non-zero pdf (e.g.
+        ``roughdielectric`` on the wrong side) is an invalid sample."""
         ctx, ctx_d, ctx_g = lobe_contexts()
         if not is_jit():    # one lane: one call
             ctx_j = ctx if own else (ctx_d if use_1 else ctx_g)
             return bsdf.sample(ctx_j, si, s1, s2, act)
-        bs, w_own = dr.zeros(mi.BSDFSample3f), mi.Spectrum(0.0)
+        bs, w = dr.zeros(mi.BSDFSample3f), mi.Spectrum(0.0)
         if has_g:
-            bs, _ = bsdf.sample(ctx_g, si, s1, s2, act & lnot(own | use_1))
+            bs, w = bsdf.sample(ctx_g, si, s1, s2, act & lnot(own | use_1))
         if has_d:
-            bs_d, _ = bsdf.sample(ctx_d, si, s1, s2, act & use_1)
-            bs = dr.select(use_1, bs_d, bs)
+            bs_d, w_d = bsdf.sample(ctx_d, si, s1, s2, act & use_1)
+            bs, w = dr.select(use_1, bs_d, bs), dr.select(use_1, w_d, w)
         if maybe_own:
-            bs_o, w_own = bsdf.sample(ctx, si, s1, s2, act & own)
-            bs = dr.select(own, bs_o, bs)
-        return bs, w_own
+            bs_o, w_o = bsdf.sample(ctx, si, s1, s2, act & own)
+            bs, w = dr.select(own, bs_o, bs), dr.select(own, w_o, w)
+        return bs, w
 
     def sample(self, scene, sampler, ray, medium=None, active=True):
         if not self.learned:
@@ -333,7 +336,7 @@ class MIS3(IntegratorTemplate):
                 bs, w_own = self.continuation(bsdf, si, s1, s2, act, own, use_1, has_d, has_g,
                                               maybe_own)
                 delta = mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta)
-                act &= bs.pdf > 0
+                act &= (bs.pdf > 0) & dr.any(w_own != 0)
                 smooth_b = act & lnot(delta)
                 f = bsdf.eval(ctx, si, bs.wo, smooth_b & lnot(own))
                 q_d, q_g = self.lobe_q(bsdf, si, bs.wo, pi1, smooth_b & lnot(own), has_d, has_g)
