@@ -120,6 +120,20 @@ MUTANTS = [
      "s = [dr.select(x > 0, dr.power(x, self.beta), 0.0) for x in r]",
      "s = [dr.select(x > 0, dr.power(x * qmax, self.beta), 0.0) for x in r]",
      ["test_parameter_edges.py"]),
+    # ---- scene features (issue 12) ---------------------------------------------------------
+    ("hide-emitters-ignored", "integrators/plugins/base.py",
+     'if not self.params.get("hide_emitters", False):', "if True:",
+     ["test_scene_features.py"]),
+    # ---- mis3: every path continues, learned light probability (issue 14) -----------------
+    ("mis3-lobe-choice-not-renormalised", "integrators/plugins/mis3.py",
+     "pi1 = safe_div(p1, p1 + p2)\n", "pi1 = safe_div(p1, p1 + p2 + p3)\n",
+     ["test_mis3_continuation.py", "test_mis3.py"]),
+    ("stochastic-nee-not-divided", "integrators/sampling/vertex.py",
+     "L = safe_div(self.light_term(ls, f_l, [self.n_b * pdf_l], p_light), p_light)",
+     "L = self.light_term(ls, f_l, [self.n_b * pdf_l], p_light)",
+     ["test_mis3_learned.py"]),
+    ("learned-emission-weight-without-p", "integrators/sampling/vertex.py",
+     "scale = p_l if learn else None", "scale = None", ["test_mis3_learned.py"]),
 ]
 
 
