@@ -56,11 +56,16 @@ p-value or per integrator (every integrator still renders the scene for the fini
    times too dark (``volpath``, ``direct`` and ours agree with each other there);
    ``test_reduced_mask_surface_matches_volpath`` compares ours on such a surface instead.
 
+5. scenes with ``hide_emitters`` and an area light: Mitsuba's ``path`` and ``direct`` shade a
+   camera path that passed a hidden light as if no area light were in the scene (no light from
+   any of them, no shadow from the hidden one), ours keep them
+   (``test_reduced_hide_emitters_closed_light``, an open discrepancy).
+
 ``test_fast_set_compared_every_integrator`` fails if these rules leave an integrator compared
 on fewer than two fast scenes.
 
 **False-failure budget** (union bound, alpha = 1.5e-5 per check, two checks per comparison):
-the fast set (7 scenes x at most 9 comparisons x 2 = 126 checks, 96 made) and the ten reduced
+the fast set (7 scenes x at most 9 comparisons x 2 = 126 checks, 78 made) and the ten reduced
 cases add at most 0.2 % to a run's false-failure bound; the slow set (30 more scenes, at most
 540 checks, about half of them made) at most 0.81 %.  The kit's end-of-run line counts
 every check that ran.  Seeds are fixed, so a checkout passes or fails deterministically.
@@ -386,6 +391,10 @@ def not_comparable(name: str, facts: dict, ref: np.ndarray) -> str | None:
     if facts["mask"]:
         return ("Mitsuba's path renders a mask surface `opacity` times too dark "
                 "(test_reduced_mask_surface_matches_volpath checks ours on one)")
+    if facts["hide_emitters"] and "area" in facts["lights"]:
+        return ("hide_emitters with area lights: Mitsuba's path shades a camera path that passed "
+                "a hidden light as if no area light were there "
+                "(test_reduced_hide_emitters_closed_light)")
     if not np.all(np.isfinite(ref)):
         return "Mitsuba's path gave non-finite pixels"
     rel = block_rel_se(ref)
@@ -533,18 +542,22 @@ def closed_light_in_front():
 
 
 @pytest.mark.xfail(strict=True, reason="known open discrepancy (issue 12): with hide_emitters, "
-                   "a camera ray through a closed light shape reads 0.79 in ours against 0.39 in "
-                   "Mitsuba's path; passing through the first emitter only gives 0.0: the rule "
-                   "path follows is not yet understood")
+                   "Mitsuba's path and direct shade a camera path that passed a hidden area light "
+                   "as if no area light were there (the ball behind reads 0.398, the same as with "
+                   "the light removed; ours 0.79: lit by it and partly shadowed from the sky)")
 @pytest.mark.parametrize("name", ["bsdf_path-bsdf", "direct_mis", "nee_path", "mis3-fixed"])
 def test_reduced_hide_emitters_closed_light(name):
     """Reduced from the fuzz (an early seed 177: a phong ball behind a cube light, hide_emitters;
-    every one of ours 28 % above path).  A camera ray that meets a hidden area light passes
-    through it once in Mitsuba's path and direct; the next surface it meets, here the cube's own
-    far face seen from inside, is opaque, with its emission hidden too.  Ours skip every
-    emitting surface along the camera ray (``skip_emitters`` in plugins/base.py), so they see
-    the ball through both faces: the centre of the image reads 0.79 against 0.39 (direct agrees
-    with path there: 0.396).  Fails until ours pass through the first emitter only."""
+    every one of ours 28 % above path; slow seed 105 the same).  Measured in Mitsuba 3.9.1 (path
+    and direct agree): a camera ray whose first hit is an emitting shape goes on past it (the
+    red ball behind is seen: rgb 0.398, 0.05, 0.05 = 0.5 x its albedo), but the rest of that
+    path gets nothing from any area light and its sky light is not blocked by the hidden shape:
+    the ball reads the same as with the cube removed (0.403).  With a second area light beside
+    it and no sky the ball reads 0.000 through the cube, 0.066 with the cube removed.  Camera
+    rays that do not meet an emitter first are unaffected.  Ours skip every emitting surface
+    along the camera ray and then shade normally (the hidden light still lights and shadows),
+    so the centre reads 0.79 against 0.39.  Whether to copy Mitsuba here is open; the fuzz
+    leaves such scenes out of its comparisons (rule 5)."""
     d = {**OURS[name], "hide_emitters": True}
     if name == "direct_mis":
         ref = {"type": "path", "max_depth": 2, "hide_emitters": True}
