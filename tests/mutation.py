@@ -137,6 +137,22 @@ MUTANTS = [
 ]
 
 
+def _topic_mutants() -> list:
+    """Mutants kept beside their tests: every ``tests/mutants_<topic>.py`` defines ``MUTANTS`` in
+    the same (name, file, original, mutated, targets) form."""
+    import importlib.util
+    found = []
+    for f in sorted((ROOT / "tests").glob("mutants_*.py")):
+        spec = importlib.util.spec_from_file_location(f.stem, f)
+        mod = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(mod)
+        found.extend(mod.MUTANTS)
+    return found
+
+
+MUTANTS = MUTANTS + _topic_mutants()
+
+
 def run_pytest(root: Path, files, env) -> tuple[str, str]:
     """'pass', 'fail' (a test failed: the mutant is caught) or 'error' (crash, collection or
     fixture error: that is no evidence the suite sees the bias, so it does not count)."""
