@@ -1,0 +1,328 @@
+r"""Integrator ``pssmlt``: Metropolis sampling in primary sample space (Kelemen et al. 2002).
+
+The image is the integral over primary samples u in [0, 1)^D (:mod:`integrators.sampling.
+primary_sample`) of the path contribution f(u) splatted at its film position (the first two
+coordinates of u).  With the importance I(u) = luminance of |f(u)| and b = int I(u) du (the
+image's mean luminance), Metropolis sampling draws u with density I(u)/b, and pixel j is
+
+    P_j = (b W H / N) sum_i 1_j(u_i) f(u_i) / I(u_i)    (N mutations over a W x H film).
+
+* **The estimator** is the path estimator of ``nee_path`` with its defaults (power-heuristic MIS
+  between one light sample and the BSDF sample at every vertex, light selection by power,
+  throughput roulette from depth 5): the shared :meth:`VertexEstimator.path`, driven by a
+  :class:`PrimarySampler` that reads the chain's primary vector instead of a sampler.
+  ``estimator=bdpt`` is refused (not yet available).
+* **Many chains**, one per Dr.Jit lane (``chains``).  Each step proposes, for every chain, a
+  large step (a fresh uniform vector) with probability ``large_step``, otherwise Kelemen's small
+  step (every coordinate moved by at most ``sigma``, mod 1; a symmetric proposal), and accepts
+  with a = min(1, I(u')/I(u)).
+* **Expected-value splatting** (Veach): the current state is splatted with weight 1 - a and the
+  proposal with weight a, each at its own pixel, f/I times b W H / N, by atomic adds into the
+  film (a box filter of one pixel: each splat goes to the pixel its film position falls in).
+* **Normalisation and start**: b is the mean of I over ``bootstrap`` independent paths (an
+  unbiased estimate of int I); the chains start from those paths, resampled in proportion to
+  I, so they start (approximately) in the stationary distribution and start-up bias is small.
+* **Passes**: ``render()`` with ``spp`` does spp x W x H mutations (spp = mutations per pixel,
+  the last step over a rotating subset of the chains).  With ``continue_chains`` (default) a
+  render whose seed is the previous render's seed + 1 (the passes of ``render`` /
+  :mod:`integrators.app.progressive`, ``--time`` included) continues the chains, b and the
+  bootstrap of that previous render, so a longer render converges rather than restarts; any
+  other seed starts afresh (new bootstrap from that seed), so runs with disjoint seed ranges
+  are independent and merge exactly.  The state is kept on the integrator object, per scene.
+  The run record lists ``continue_chains``; the variance layer of ``render`` treats passes as
+  independent, which continued chains are not (it understates the error).
+* Films: the image is RGB internally; Y, XYZ and alpha (1) channels are derived for the film's
+  pixel format.  The splat is the box filter, whatever the film's ``rfilter``.
+* Variants: JIT variants only (``llvm_*``, ``cuda_*``); scalar variants are refused in one line.
+"""
+from __future__ import annotations
+
+import math
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+from ..common import depth_limit, is_jit
+from ..params import MAX_COUNT, Param, ParameterError
+from ..registry import plugin
+from ..sampling import light_selection, mis, roulette
+from ..sampling import primary_sample as ps
+from ..sampling.vertex import VertexEstimator
+from .base import HIDE_EMITTERS, MAX_DEPTH, IntegratorTemplate
+
+MAX_CHAINS = 1 << 20
+MAX_BOOTSTRAP = 1 << 24
+
+
+def _rgb(L, wavelengths, active):
+    """The sRGB value of a radiance sample in any variant (Color3f)."""
+    s = mi.unpolarized_spectrum(L)
+    if mi.is_spectral:
+        return mi.spectrum_to_srgb(s, wavelengths, active)
+    if mi.is_monochromatic:
+        return mi.Color3f(s[0], s[0], s[0])
+    return mi.Color3f(s)
+
+
+def importance(rgb):
+    """I(u): luminance of |f(u)| (positive wherever any channel is non-zero)."""
+    return mi.luminance(dr.abs(rgb))
+
+
+class ChainState:
+    """The chains and what they have seen: current vectors ``u`` (flat, chains x ``dims``),
+    their contributions (``rgb``, importance ``lum``, pixel ``pix``), the sum and count of I
+    over independent samples (bootstrap and large-step proposals: b = lum_sum / lum_count),
+    and counters.  ``key``: the run's random key (from its first seed)."""
+
+    def __init__(self, key, dims, u, rgb, lum, pix, lum_sum, bootstrap):
+        self.key, self.dims, self.u, self.rgb, self.lum, self.pix = key, dims, u, rgb, lum, pix
+        self.chains = dr.width(lum)
+        self.lum_sum, self.lum_count, self.bootstrap = lum_sum, bootstrap, bootstrap
+        self.steps = 0           # steps taken (keys the random streams)
+        self.offset = 0          # first chain of the next partial step
+        self.mutations = 0
+        self.accepted = 0.0      # sum of acceptance probabilities
+        self.large = 0
+        self.scene = self.sensor = self.size = None
+        self.seed_first = self.seed_last = None
+
+    @property
+    def b(self) -> float:
+        return self.lum_sum / max(self.lum_count, 1)
+
+
+@plugin("pssmlt", "integrator")
+class PSSMLT(IntegratorTemplate):
+    """Primary-sample-space Metropolis light transport: many chains, bootstrap normalisation."""
+
+    PARAMS = (
+        MAX_DEPTH,
+        Param("large_step", "float", 0.3, min=0.0, max=1.0,
+              doc="Probability of a large step (a fresh uniform primary sample)."),
+        Param("sigma", "float", 1.0 / 64.0, min=0.0, max=0.5, min_exclusive=True,
+              doc="Small-step size: Kelemen's s2 (largest offset per coordinate; s1 = s2/16)."),
+        Param("chains", "int", 16384, min=1, max=MAX_CHAINS,
+              doc="Markov chains run in parallel (one Dr.Jit lane each)."),
+        Param("bootstrap", "int", 100000, min=1, max=MAX_BOOTSTRAP,
+              doc="Independent paths that estimate the normalisation b and seed the chains."),
+        Param("estimator", "choice", "path", choices=("path", "bdpt"),
+              doc="Path estimator driven by the chains (bdpt: not yet available)."),
+        Param("continue_chains", "bool", True,
+              doc="A render whose seed follows the previous one continues its chains "
+                  "(render passes); false: every render starts from a new bootstrap."),
+        HIDE_EMITTERS,
+    )
+
+    def setup(self):
+        if self.estimator == "bdpt":
+            raise ParameterError(
+                "pssmlt: parameter 'estimator' = 'bdpt' is not yet available (no bdpt "
+                "estimator in this version); allowed now: path")
+        if not is_jit():
+            raise ParameterError(
+                f"pssmlt: variant {mi.variant()} is not supported (the chains are Dr.Jit "
+                "lanes); use a JIT variant such as llvm_ad_rgb")
+        self.heur = mis.Heuristic("power", 2.0, 0.1)
+        self.lights = light_selection.SelectionCache("power")
+        self.vertex = VertexEstimator(self.heur, 1, 1, roulette.Roulette("throughput", 5))
+        self.dims = ps.dims_for(self.max_depth)
+        self.state = None
+
+    # ---- the estimator: one path per lane from a primary sampler --------------------------
+    def contribution(self, scene, sensor, sel, sampler, active=True):
+        """(pixel index, sRGB contribution, I) of each lane's primary sample.  Consumes the
+        sampler's coordinates in the order of primary_sample.CAMERA_DIMS, then the path's."""
+        film = sensor.film()
+        w, h = (int(x) for x in film.crop_size())
+        pos = sampler.next_2d(active)
+        wav = sampler.next_1d(active)
+        aperture = sampler.next_2d(active)
+        t = sampler.next_1d(active)
+        time = sensor.shutter_open() + t * sensor.shutter_open_time()
+        ray, ray_w = sensor.sample_ray(time, wav, pos, aperture, active)
+        ray = mi.Ray3f(ray)
+        act = mi.Bool(active)
+        si, L = self.camera_hit(scene, ray, act)
+        act = act & si.is_valid() & (1 < depth_limit(self.max_depth))
+        L += self.vertex.path(scene, sampler, sel, ray, si, act, self.max_depth)
+        rgb = _rgb(ray_w * L, ray.wavelengths, active)
+        ok = dr.all(dr.isfinite(rgb)) & mi.Bool(active)
+        rgb = dr.select(ok, rgb, 0.0)
+        px = dr.minimum(mi.UInt32(dr.floor(pos.x * w)), w - 1)
+        py = dr.minimum(mi.UInt32(dr.floor(pos.y * h)), h - 1)
+        return py * w + px, rgb, importance(rgb)
+
+    def sample(self, scene, sampler, ray, medium=None, active=True):
+        """The estimator the chains drive, with an ordinary sampler (one independent path)."""
+        sel = self.prepare(scene)
+        ray = mi.Ray3f(ray)
+        act = mi.Bool(active)
+        si, L = self.camera_hit(scene, ray, act)
+        valid = si.is_valid()
+        act = act & valid & (1 < depth_limit(self.max_depth))
+        L += self.vertex.path(scene, sampler, sel, ray, si, act, self.max_depth)
+        return L, valid, []
+
+    # ---- render: passes of spp x W x H mutations ------------------------------------------
+    def render(self, scene, sensor=0, seed=0, spp=0, develop=True, evaluate=True):
+        if isinstance(sensor, int):
+            sensor = scene.sensors()[sensor]
+        if spp == 0:
+            spp = sensor.sampler().sample_count()
+        seed = int(seed)
+        sel = self.prepare(scene)
+        film = sensor.film()
+        w, h = (int(x) for x in film.crop_size())
+        st = self.state
+
+        def contribution(sampler):
+            return self.contribution(scene, sensor, sel, sampler)
+
+        if not (self.continue_chains and st is not None and st.scene is scene and
+                st.sensor is sensor and st.size == (w, h) and seed == st.seed_last + 1):
+            self.state = None
+            st = start(contribution, self.dims, self.chains, self.bootstrap, seed)
+            st.scene, st.sensor, st.size, st.seed_first = scene, sensor, (w, h), seed
+        st.seed_last = seed
+        self.state = st
+        total = int(spp) * w * h
+        image = dr.zeros(mi.Float, w * h * 3)
+        # splats are f/I (w h / N); b, refined by this pass's large steps, multiplies at the end
+        run(contribution, st, total, image, dr.opaque(mi.Float, w * h / total),
+            self.large_step, self.sigma)
+        return self.develop_image(film, image * st.b, w, h)
+
+    @staticmethod
+    def develop_image(film, image, w, h):
+        """The (h, w, channels) tensor of the film's pixel format from the RGB image."""
+        rgb = np.array(image, dtype=np.float32).reshape(h, w, 3)
+        text = str(film)
+        fmt = "rgba"
+        for line in text.splitlines():
+            if "pixel_format" in line:
+                fmt = line.split("=", 1)[-1].strip(" ,").lower()
+        y = (0.212671 * rgb[..., 0] + 0.715160 * rgb[..., 1] + 0.072169 * rgb[..., 2])[..., None]
+        ones = np.ones((h, w, 1), np.float32)
+        if fmt.startswith("xyz"):
+            m = np.array([[0.412453, 0.357580, 0.180423], [0.212671, 0.715160, 0.072169],
+                          [0.019334, 0.119193, 0.950227]], np.float32)
+            col = rgb @ m.T
+        elif fmt in ("luminance", "y", "luminance_alpha", "ya"):
+            col = y
+        else:
+            col = rgb
+        out = np.concatenate([col, ones], axis=2) if fmt.endswith("a") else col
+        return mi.TensorXf(np.ascontiguousarray(out, dtype=np.float32))
+
+    # ---- what a run did -------------------------------------------------------------------
+    def stats(self) -> dict:
+        """b, chains, mutations, mean acceptance and large-step fraction of the current run."""
+        st = self.state
+        if st is None:
+            return {}
+        return {"b": st.b, "chains": st.chains, "bootstrap": st.bootstrap,
+                "mutations": st.mutations, "seed_first": st.seed_first,
+                "seed_last": st.seed_last,
+                "acceptance": st.accepted / max(st.mutations, 1),
+                "large_fraction": st.large / max(st.mutations, 1)}
+
+
+# ---- the chains, for any contribution (the integrator's paths, or a toy integrand in tests) ---
+def _key(seed: int, counter: int):
+    k = mi.sample_tea_32(mi.UInt32(seed & 0xFFFFFFFF), mi.UInt32(counter & 0xFFFFFFFF), 8)[0]
+    return int(k[0]) if dr.width(k) else int(k)
+
+
+def start(evaluate, dims: int, chains: int, bootstrap: int, seed: int, resample: bool = True):
+    """Bootstrap and seed the chains: ``bootstrap`` independent primary vectors (generated
+    from their index and a key from ``seed``) evaluated by ``evaluate(sampler) -> (pixel, rgb,
+    I)``; b = mean I; the chains' vectors resampled from them in proportion to I (uniformly
+    with ``resample`` False, or when every I is zero).  Returns a :class:`ChainState`."""
+    key = _key(seed, 0x9E3779B9)
+    k = dr.opaque(mi.UInt32, key)
+    pix_b, rgb_b, lum_b = evaluate(ps.primary_sampler(None, dims, dr.arange(mi.UInt32, bootstrap), k))
+    dr.eval(pix_b, rgb_b, lum_b)
+    lum_sum = float(np.array(lum_b, dtype=np.float64).sum())
+    if resample and lum_sum > 0:
+        dist = mi.DiscreteDistribution(lum_b)
+        pick = dist.sample(ps.uniform(dr.arange(mi.UInt32, chains), ps.stream(k, ps.STREAM_SEED)))
+    else:
+        pick = mi.UInt32(np.minimum((np.arange(chains) * bootstrap) // chains, bootstrap - 1))
+    flat = dr.arange(mi.UInt32, chains * dims)
+    row = flat // dims
+    u = ps.uniform(dr.gather(mi.UInt32, pick, row) * dims + (flat - row * dims), k)
+    st = ChainState(key, dims, u, dr.gather(mi.Color3f, rgb_b, pick),
+                    dr.gather(mi.Float, lum_b, pick), dr.gather(mi.UInt32, pix_b, pick),
+                    lum_sum, bootstrap)
+    dr.eval(st.u, st.rgb, st.lum, st.pix)
+    return st
+
+
+def step(evaluate, st: "ChainState", ids, image, scale, large_step: float, sigma: float):
+    """One Metropolis step of the chains ``ids`` (UInt32): propose (large step with
+    probability ``large_step``, else Kelemen's small step of size ``sigma``), splat the current
+    and the proposed state with weights 1 - a and a (times ``scale`` / I) into the flat RGB
+    ``image`` at their pixels, accept with probability a = min(1, I'/I).  Large-step proposals
+    are independent uniform samples: their I refine the estimate of b."""
+    k = dr.opaque(mi.UInt32, _key(st.key, st.steps + 1))
+    st.steps += 1
+    prop, large = ps.mutate(st.u, ids, st.dims, k, large_step, sigma)
+    m = dr.width(ids)
+    pix, rgb, lum = evaluate(ps.primary_sampler(prop, st.dims, dr.arange(mi.UInt32, m), k))
+    lum_c = dr.gather(mi.Float, st.lum, ids)
+    rgb_c = dr.gather(mi.Color3f, st.rgb, ids)
+    pix_c = dr.gather(mi.UInt32, st.pix, ids)
+    pos_c = lum_c > 0
+    a = dr.select(pos_c, dr.minimum(1.0, lum / dr.select(pos_c, lum_c, 1.0)), 1.0)
+    w_c = dr.select(pos_c, (1.0 - a) * scale / dr.select(pos_c, lum_c, 1.0), 0.0)
+    w_p = dr.select(lum > 0, a * scale / dr.select(lum > 0, lum, 1.0), 0.0)
+    splat(image, pix_c, rgb_c * w_c, w_c > 0)
+    splat(image, pix, rgb * w_p, w_p > 0)
+    accept = ps.uniform(ids, ps.stream(k, ps.STREAM_ACCEPT)) < a
+    dr.scatter(st.lum, lum, ids, accept)
+    dr.scatter(st.rgb, rgb, ids, accept)
+    dr.scatter(st.pix, pix, ids, accept)
+    flat = dr.arange(mi.UInt32, m * st.dims)
+    row = flat // st.dims
+    chain = dr.gather(mi.UInt32, ids, row)
+    dr.scatter(st.u, prop, chain * st.dims + (flat - row * st.dims),
+               dr.gather(mi.Bool, accept, row))
+    acc_sum = dr.sum(a)
+    n_large = dr.count(large)
+    large_sum = dr.sum(dr.select(large, lum, 0.0))
+    dr.eval(st.u, st.lum, st.rgb, st.pix, image, acc_sum, n_large, large_sum)
+    st.accepted += _scalar(acc_sum)
+    st.large += int(_scalar(n_large))
+    st.lum_sum += _scalar(large_sum)
+    st.lum_count += int(_scalar(n_large))
+    st.mutations += m
+
+
+def run(evaluate, st: "ChainState", mutations: int, image, scale, large_step: float,
+        sigma: float):
+    """``mutations`` steps of single chains: whole steps over every chain, then one over a
+    rotating subset, so that every chain takes its share."""
+    done = 0
+    while done < mutations:
+        m = min(st.chains, mutations - done)
+        if m == st.chains:
+            ids = dr.arange(mi.UInt32, m)
+        else:
+            ids = (dr.arange(mi.UInt32, m) + st.offset) % st.chains
+            st.offset = (st.offset + m) % st.chains
+        step(evaluate, st, ids, image, scale, large_step, sigma)
+        done += m
+
+
+def _scalar(x) -> float:
+    return float(x[0]) if dr.width(x) else float(x)
+
+
+def splat(image, pix, rgb, active):
+    """Atomic adds of ``rgb`` into pixel ``pix`` of the flat RGB ``image``."""
+    base = pix * 3
+    dr.scatter_add(image, rgb[0], base, active)
+    dr.scatter_add(image, rgb[1], base + 1, active)
+    dr.scatter_add(image, rgb[2], base + 2, active)
