@@ -1,0 +1,702 @@
+r"""A light BVH: spatially adaptive light selection in O(log N) per shading point.
+
+The tree of Conty Estevez & Kulla (2018), with the importance bound and the split cost of
+pbrt-v4's ``BVHLightSampler`` / ``LightBounds`` (re-implemented here, numpy for the build and
+Dr.Jit for the traversal).
+
+**What a node bounds.**  Every node holds the summed power Phi of its lights, an axis-aligned box
+around them, and a cone of emission directions: an axis w, the half-angle theta_o that bounds the
+lights' normals (or, for a point light, theta_o = pi) and the half-angle theta_e of emission
+around any such normal (pi/2 for Lambertian emitters), plus a two-sided flag (then the cone bounds
++-w).  The **importance** of a node at a shading point x with normal n (pbrt-v4's
+``LightBounds::Importance``) is
+
+    I = Phi cos(theta') / max(d^2, r^2) * cos(max(theta_i - theta_b, 0)),
+
+with d the distance from x to the box centre, r the box's half diagonal, theta_b the half-angle
+the box's bounding sphere subtends at x (pi inside it), theta' = max(theta_w - theta_o - theta_b,
+0) the smallest angle between the cone and the direction to x, and theta_i the angle between that
+direction and the line of n (|cos|: the receiver may transmit).  I = 0 only when no point of the
+box can emit towards x within the cone (theta' >= theta_e + 1e-3 rad of slack for float32); the
+receiver factor is floored at 1e-3, so a light that can contribute always has I > 0 and can be
+chosen (the estimator stays unbiased without a defensive mixture).
+
+**Traversal** (:meth:`LightTree.choose`): from the root, the child c of a node is chosen with
+probability I_c / (I_left + I_right), one uniform number rescaled after each decision; the pmf of
+the light reached is the product of those ratios.  A symbolic Dr.Jit loop (one iteration per
+level), so the kernel does not grow with the number of lights.  **The pmf of a given light** at a
+point (:meth:`LightTree.pmf_at`, for MIS of BSDF-sampled hits) walks the same root-to-leaf path,
+read from the light's bit trail (bit k: right child at depth k; 64 bits in two words), evaluating
+the same two importances per level in the same order, so it equals the probability of traversal.
+
+**Which emitters are leaves.**  Every finite emitter is one leaf:
+
+* an area emitter (Mitsuba's ``area`` on any shape) is **one leaf for the whole shape** (a
+  Mitsuba emitter is one entity to Mitsuba's ``sample_direction``; splitting a mesh into triangles
+  would need our own per-triangle sampling): its box is the shape's bounding box, its cone the
+  shape's normal for ``rectangle`` and ``disk`` (one-sided: Mitsuba's area light emits on the
+  front only), the cone of all face (and vertex, when present) normals of a mesh, taken
+  two-sided because the orientation flags of a mesh are not read back (the full sphere when
+  those normals do not fit in a cone), and the full sphere for curved shapes (sphere,
+  cylinder, ...);
+* point, spot and projector lights are point leaves (box = their position, full sphere of
+  directions: the spot's cone is not used, which is conservative);
+* infinite emitters (``constant``, ``envmap``, ``directional``) are chosen **outside the tree**:
+  as in pbrt-v4, with probability n_inf / (n_inf + 1) one of the n_inf infinite emitters of
+  nonzero power uniformly, otherwise the tree.
+
+Emitters of zero power are not in the tree and are never chosen (they add nothing).  If every
+finite emitter has zero power (a power estimate that failed), all get power 1.
+
+**Build** (:func:`build`): top-down, all nodes of a level at once in numpy (vectorised over the
+lights, no Python loop over nodes), splitting each node at the minimum over 3 axes x 11 bucket
+boundaries (12 buckets over the centroid bounds) of pbrt's surface-area-orientation cost
+Phi * M_Omega(theta_o, theta_e) * area(box) * K_r (K_r = longest box extent / extent along the
+axis), with one light per leaf.  Bucket cones are bounded by their mean axis and the largest
+angle to it, unions of cones follow pbrt's ``Union(DirectionCone, DirectionCone)``.  A node
+with no valid split (all centroids equal), or deeper than 40, is split at the median count, so
+the depth stays below 64 for up to 2^24 lights.  Nodes are numbered level by level with the two
+children adjacent, and flattened into Dr.Jit arrays (boxes rounded outwards to float32).
+"""
+from __future__ import annotations
+
+import math
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+from ..common import is_jit
+from .light_selection import LightSelection, emitter_powers
+
+BUCKETS = 12
+SMALL = 8                  # nodes of at most this many lights: split at the median
+MEDIAN_DEPTH = 40          # deeper nodes are split at the median count
+MAX_DEPTH = 64             # bit trail: two 32-bit words
+COS_E_SLACK = 1e-3         # the emission-cone test keeps lights up to this much beyond it
+RECEIVER_FLOOR = 1e-3      # smallest receiver factor (shading normals may see past the horizon)
+ONE_MINUS_EPS = 1.0 - 2.0 ** -24
+LEAF = np.uint32(0x80000000)
+
+
+# ---------------------------------------------------------------------------------------------
+# numpy geometry of cones and bounds
+def _norm(v):
+    return np.sqrt(np.einsum("...i,...i->...", v, v))
+
+
+def _angle_between(a, b):
+    """Angle between unit vectors, accurate for small angles."""
+    return 2.0 * np.arctan2(_norm(a - b), _norm(a + b))
+
+
+def cone_union(wa, ca, wb, cb):
+    """pbrt-v4's ``Union(DirectionCone a, DirectionCone b)``, vectorised: (w, cos theta) of the
+    smallest cone (of that construction) around both.  cos = -1 is the entire sphere; an empty
+    cone is passed as cos = +inf (returns the other one)."""
+    wa, wb = np.asarray(wa, float), np.asarray(wb, float)
+    ca, cb = np.asarray(ca, float), np.asarray(cb, float)
+    empty_a, empty_b = ~np.isfinite(ca), ~np.isfinite(cb)
+    ta = np.arccos(np.clip(ca, -1, 1))
+    tb = np.arccos(np.clip(cb, -1, 1))
+    td = _angle_between(wa, wb)
+    to = 0.5 * (ta + td + tb)
+    tr = to - ta
+    wr = np.cross(wa, wb)
+    lr = _norm(wr)
+    k = wr / np.maximum(lr, 1e-30)[..., None]
+    # Rodrigues: rotate wa about k by tr
+    ct, st = np.cos(tr)[..., None], np.sin(tr)[..., None]
+    w = wa * ct + np.cross(k, wa) * st + k * np.einsum("...i,...i->...", k, wa)[..., None] * (1 - ct)
+    w /= np.maximum(_norm(w), 1e-30)[..., None]
+    c = np.cos(to)
+    full = (to >= math.pi) | (lr == 0)
+    w = np.where(full[..., None], [0.0, 0.0, 1.0], w)
+    c = np.where(full, -1.0, c)
+    a_covers = np.minimum(td + tb, math.pi) <= ta
+    b_covers = np.minimum(td + ta, math.pi) <= tb
+    pick_a = (a_covers | empty_b) & ~empty_a
+    pick_b = (b_covers | empty_a) & ~pick_a
+    w = np.where(pick_a[..., None], wa, np.where(pick_b[..., None], wb, w))
+    c = np.where(pick_a, ca, np.where(pick_b, cb, c))
+    return w, c
+
+
+def m_omega(cos_o, cos_e):
+    """pbrt-v4's orientation measure of a cone (theta_o, theta_e)."""
+    cos_o = np.clip(cos_o, -1, 1)
+    t_o, t_e = np.arccos(cos_o), np.arccos(np.clip(cos_e, -1, 1))
+    t_w = np.minimum(t_o + t_e, math.pi)
+    sin_o = np.sqrt(np.maximum(1 - cos_o * cos_o, 0))
+    return (2 * math.pi * (1 - cos_o)
+            + math.pi / 2 * (2 * t_w * sin_o - np.cos(t_o - 2 * t_w) - 2 * t_o * sin_o + cos_o))
+
+
+def _area(lo, hi):
+    with np.errstate(invalid="ignore"):    # empty buckets: inf - inf
+        d = np.maximum(np.nan_to_num(hi - lo, nan=0.0, posinf=0.0, neginf=0.0), 0)
+    return 2 * (d[..., 0] * d[..., 1] + d[..., 1] * d[..., 2] + d[..., 2] * d[..., 0])
+
+
+def mean_axis_cone(w, cos_o, group, n_groups):
+    """A cone around the axes of every group (cos = +inf for empty groups): the normalised sum
+    of the member axes, widened to the largest angle to a member plus its own theta_o (the
+    entire sphere when the sum vanishes)."""
+    s = np.zeros((n_groups, 3))
+    for k in range(3):
+        s[:, k] = np.bincount(group, weights=w[:, k], minlength=n_groups)
+    count = np.bincount(group, minlength=n_groups)
+    length = _norm(s)
+    ok = length > 1e-6 * np.maximum(count, 1)
+    axis = np.where(ok[:, None], s / np.maximum(length, 1e-30)[:, None], [0.0, 0.0, 1.0])
+    ang = _angle_between(axis[group], w) + np.arccos(np.clip(cos_o, -1, 1))
+    widest = np.zeros(n_groups)
+    np.maximum.at(widest, group, ang)
+    cos = np.where(widest >= math.pi, -1.0, np.cos(np.minimum(widest, math.pi)))
+    cos = np.where(ok, cos, -1.0)
+    cos = np.where(count > 0, cos, np.inf)
+    return axis, cos
+
+
+# ---------------------------------------------------------------------------------------------
+class Tree:
+    """The flattened tree (numpy, float64): per node box, cone, power, two-sided flag and
+    ``info`` (LEAF | light for a leaf, else the index of the first of the two children); per
+    light (index into the arrays given to :func:`build`) its depth and bit trail."""
+
+    def __init__(self, n_nodes, n_lights):
+        self.lo = np.zeros((n_nodes, 3))
+        self.hi = np.zeros((n_nodes, 3))
+        self.w = np.zeros((n_nodes, 3))
+        self.cos_o = np.zeros(n_nodes)
+        self.cos_e = np.zeros(n_nodes)
+        self.phi = np.zeros(n_nodes)
+        self.two = np.zeros(n_nodes, bool)
+        self.info = np.zeros(n_nodes, np.uint32)
+        self.level = np.zeros(n_nodes, np.int64)
+        self.depth = np.zeros(n_lights, np.uint32)
+        self.trail = np.zeros(n_lights, np.uint64)
+        self.node_of = np.zeros(n_lights, np.int64)
+
+    @property
+    def size(self):
+        return len(self.phi)
+
+
+def build(lo, hi, w, cos_o, cos_e, two, phi) -> Tree:
+    """Build the light BVH over N >= 1 lights given by numpy arrays: box corners lo, hi (N, 3),
+    cone axes w (N, 3), cos theta_o, cos theta_e, two-sided flags and powers (N,)."""
+    lo, hi, w = (np.asarray(a, float).reshape(-1, 3) for a in (lo, hi, w))
+    cos_o, cos_e, phi = (np.asarray(a, float).ravel() for a in (cos_o, cos_e, phi))
+    two = np.asarray(two, bool).ravel()
+    n = len(phi)
+    if n == 0:
+        raise ValueError("light tree: no lights to build over")
+    tree = Tree(2 * n - 1, n)
+    centroid = 0.5 * (lo + hi)
+    perm = np.arange(n)
+    # the active segments of this level: perm[start:end] are the lights of node `node`
+    start, end = np.array([0]), np.array([n])
+    node = np.array([0])
+    trail = np.array([0], np.uint64)
+    next_id, level = 1, 0
+    while len(start):
+        length = end - start
+        tree.level[node] = level
+        # leaves
+        leaf = length == 1
+        if leaf.any():
+            j = perm[start[leaf]]
+            tree.info[node[leaf]] = LEAF | j.astype(np.uint32)
+            tree.depth[j] = level
+            tree.trail[j] = trail[leaf]
+            tree.node_of[j] = node[leaf]
+        start, end, node, trail, length = (a[~leaf] for a in (start, end, node, trail, length))
+        if not len(start):
+            break
+        S = len(start)
+        offs = np.concatenate([[0], np.cumsum(length)[:-1]])
+        pos = np.repeat(start - offs, length) + np.arange(length.sum())
+        ids = perm[pos]
+        seg = np.repeat(np.arange(S), length)
+        c = centroid[ids]
+        cmin = np.minimum.reduceat(c, offs, axis=0)
+        cmax = np.maximum.reduceat(c, offs, axis=0)
+        # SAOH over the nodes of more than SMALL lights; the others (and nodes without a valid
+        # split) at the median of their longest centroid extent
+        big = length > SMALL
+        split_k = np.full(S, -1)
+        split_dim = np.full(S, -1)
+        if big.any() and level < MEDIAN_DEPTH:
+            sel = big[seg]
+            bs = np.nonzero(big)[0]
+            remap = np.cumsum(big) - 1
+            k, d = _best_splits(ids[sel], remap[seg[sel]], len(bs),
+                                np.concatenate([[0], np.cumsum(length[big])[:-1]]),
+                                centroid, lo, hi, w, cos_o, cos_e, phi)
+            split_k[bs], split_dim[bs] = k, d
+        use_sah = split_k >= 0
+        sd = np.where(use_sah, split_dim, np.argmax(cmax - cmin, axis=1))
+        coord = c[np.arange(len(ids)), sd[seg]]
+        ext = (cmax - cmin)[np.arange(S), sd]
+        b = _bucket(coord, cmin[np.arange(S), sd][seg], ext[seg])
+        # lights of median-split nodes in order of their coordinate, then the first half left
+        med = ~use_sah[seg]
+        if med.any():
+            m = np.nonzero(med)[0]
+            o = m[np.lexsort((coord[m], seg[m]))]
+            ids[m], b[m] = ids[o], b[o]
+        rank = np.arange(len(ids)) - offs[seg]
+        side = np.where(use_sah[seg], b > split_k[seg], rank >= (length // 2)[seg])
+        order = np.argsort(2 * seg + side, kind="stable")
+        perm[pos] = ids[order]
+        n_left = np.bincount(seg, weights=~side, minlength=S).astype(np.int64)
+        # children: adjacent, numbered level by level
+        first = next_id + 2 * np.arange(S)
+        tree.info[node] = first.astype(np.uint32)
+        next_id += 2 * S
+        bit = np.uint64(1) << np.uint64(level)
+        mid = start + n_left
+        start = np.stack([start, mid], 1).ravel()
+        end = np.stack([mid, end], 1).ravel()
+        node = np.stack([first, first + 1], 1).ravel()
+        trail = np.stack([trail, trail | bit], 1).ravel()
+        level += 1
+        if level > MAX_DEPTH:
+            raise RuntimeError("light tree: deeper than 64 levels")
+    # bounds bottom-up: leaves from their light, interior nodes as the union of their children
+    is_leaf = (tree.info & LEAF) != 0
+    lf = np.nonzero(is_leaf)[0]
+    j = (tree.info[lf] & ~LEAF).astype(np.int64)
+    tree.lo[lf], tree.hi[lf], tree.w[lf] = lo[j], hi[j], w[j]
+    tree.cos_o[lf], tree.cos_e[lf], tree.phi[lf], tree.two[lf] = cos_o[j], cos_e[j], phi[j], two[j]
+    for lev in range(int(tree.level.max()), -1, -1):
+        nd = np.nonzero((tree.level == lev) & ~is_leaf)[0]
+        if not len(nd):
+            continue
+        a = tree.info[nd].astype(np.int64)
+        b2 = a + 1
+        tree.lo[nd] = np.minimum(tree.lo[a], tree.lo[b2])
+        tree.hi[nd] = np.maximum(tree.hi[a], tree.hi[b2])
+        tree.phi[nd] = tree.phi[a] + tree.phi[b2]
+        tree.two[nd] = tree.two[a] | tree.two[b2]
+        tree.cos_e[nd] = np.minimum(tree.cos_e[a], tree.cos_e[b2])
+        tree.w[nd], tree.cos_o[nd] = cone_union(tree.w[a], tree.cos_o[a], tree.w[b2], tree.cos_o[b2])
+    return tree
+
+
+def _reduce_at(ufunc, init, n, key, v):
+    """ufunc.at over the rows of v grouped by key into n rows, a column at a time (the 1-D
+    ufunc.at is much faster than the 2-D one)."""
+    out = np.full((n, v.shape[1]), init)
+    for k in range(v.shape[1]):
+        col = np.full(n, init)
+        ufunc.at(col, key, v[:, k])
+        out[:, k] = col
+    return out
+
+
+def _bucket(c, cmin, ext):
+    b = np.floor(BUCKETS * (c - cmin) / np.where(ext > 0, ext, 1.0)).astype(np.int64)
+    return np.clip(b, 0, BUCKETS - 1)
+
+
+def _best_splits(ids, seg, S, offs, centroid, lo, hi, w, cos_o, cos_e, phi):
+    """Per segment: (bucket boundary k, axis) of the cheapest SAOH split, k = -1 for none."""
+    c = centroid[ids]
+    cmin = np.minimum.reduceat(c, offs, axis=0)
+    cmax = np.maximum.reduceat(c, offs, axis=0)
+    nlo = np.minimum.reduceat(lo[ids], offs, axis=0)
+    nhi = np.maximum.reduceat(hi[ids], offs, axis=0)
+    diag = nhi - nlo
+    best = np.full(S, np.inf)
+    best_k = np.full(S, -1)
+    best_d = np.full(S, -1)
+    nb = S * BUCKETS
+    lo_i, hi_i, phi_i, w_i, co_i, ce_i = lo[ids], hi[ids], phi[ids], w[ids], cos_o[ids], cos_e[ids]
+    # one cone for every light (all point lights, or flat lights facing the same way): the
+    # orientation measure is the same for every split and drops out of the comparison
+    same_cone = bool(np.all(w_i == w_i[0]) and np.all(co_i == co_i[0]) and np.all(ce_i == ce_i[0]))
+    for dim in range(3):
+        ext = cmax[:, dim] - cmin[:, dim]
+        b = _bucket(c[:, dim], cmin[seg, dim], ext[seg])
+        key = seg * BUCKETS + b
+        count = np.bincount(key, minlength=nb)
+        bphi = np.bincount(key, weights=phi_i, minlength=nb)
+        blo = _reduce_at(np.minimum, np.inf, nb, key, lo_i)
+        bhi = _reduce_at(np.maximum, -np.inf, nb, key, hi_i)
+        if same_cone:
+            bw = np.broadcast_to(w_i[0], (nb, 3))
+            bco = np.where(np.arange(nb) >= 0, co_i[0], 0.0)
+            bce = np.full(nb, ce_i[0])
+        else:
+            bw, bco = mean_axis_cone(w_i, co_i, key, nb)
+            bce = np.full(nb, 1.0)
+            np.minimum.at(bce, key, ce_i)
+        shp = (S, BUCKETS)
+        count, bphi, bco, bce = (a.reshape(shp) for a in (count, bphi, bco, bce))
+        blo, bhi, bw = (a.reshape(S, BUCKETS, 3) for a in (blo, bhi, bw))
+
+        def sweep(order):
+            """Cost of the union of buckets order[0..i] for every i (S, len(order))."""
+            out = np.zeros((S, len(order)))
+            acc_lo = np.full((S, 3), np.inf)
+            acc_hi = np.full((S, 3), -np.inf)
+            acc_w = np.tile([0.0, 0.0, 1.0], (S, 1))
+            acc_c = np.full(S, np.inf)
+            acc_phi = np.zeros(S)
+            acc_ce = np.ones(S)
+            for i, k in enumerate(order):
+                acc_lo = np.minimum(acc_lo, blo[:, k])
+                acc_hi = np.maximum(acc_hi, bhi[:, k])
+                acc_phi = acc_phi + bphi[:, k]
+                if same_cone:
+                    out[:, i] = acc_phi * _area(acc_lo, np.maximum(acc_hi, acc_lo))
+                    continue
+                acc_ce = np.minimum(acc_ce, bce[:, k])
+                acc_w, acc_c = cone_union(acc_w, acc_c, bw[:, k], bco[:, k])
+                cc = np.where(np.isfinite(acc_c), acc_c, 1.0)
+                out[:, i] = acc_phi * m_omega(cc, acc_ce) * _area(acc_lo, np.maximum(acc_hi, acc_lo))
+            return out
+
+        left = sweep(range(BUCKETS - 1))                      # buckets 0..k
+        right = sweep(range(BUCKETS - 1, 0, -1))[:, ::-1]     # buckets k+1..11
+        n_left = np.cumsum(count, axis=1)[:, :-1]
+        total = count.sum(1)[:, None]
+        kr = diag.max(1) / np.maximum(diag[:, dim], 1e-12 * np.maximum(diag.max(1), 1e-30))
+        cost = (left + right) * kr[:, None]
+        cost = np.where((n_left > 0) & (n_left < total) & (ext[:, None] > 0), cost, np.inf)
+        k = np.argmin(cost, axis=1)
+        ck = cost[np.arange(S), k]
+        better = ck < best
+        best = np.where(better, ck, best)
+        best_k = np.where(better, k, best_k)
+        best_d = np.where(better, dim, best_d)
+    return best_k, best_d
+
+
+# ---------------------------------------------------------------------------------------------
+def _down(x):
+    return np.nextafter(x.astype(np.float32), np.float32(-np.inf))
+
+
+def _up(x):
+    return np.nextafter(x.astype(np.float32), np.float32(np.inf))
+
+
+class DeviceTree:
+    """The tree in Dr.Jit arrays (numpy arrays in scalar variants), with the importance bound,
+    the traversal and the root-to-leaf pmf."""
+
+    FIELDS = ("lx", "ly", "lz", "hx", "hy", "hz", "wx", "wy", "wz", "cos_o", "sin_o", "cos_e",
+              "phi", "two")
+
+    def __init__(self, tree: Tree):
+        cos_o = np.clip(tree.cos_o, -1, 1)
+        lo, hi = _down(tree.lo), _up(tree.hi)
+        cols = dict(lx=lo[:, 0], ly=lo[:, 1], lz=lo[:, 2], hx=hi[:, 0], hy=hi[:, 1], hz=hi[:, 2],
+                    wx=tree.w[:, 0], wy=tree.w[:, 1], wz=tree.w[:, 2], cos_o=cos_o,
+                    sin_o=np.sqrt(np.maximum(1 - cos_o ** 2, 0)), cos_e=tree.cos_e,
+                    phi=tree.phi, two=tree.two.astype(float))
+        self.size = tree.size
+        self.root_leaf = bool(tree.info[0] & LEAF)
+        trail_lo = (tree.trail & np.uint64(0xFFFFFFFF)).astype(np.uint32)
+        trail_hi = (tree.trail >> np.uint64(32)).astype(np.uint32)
+        if is_jit():
+            self.col = {k: mi.Float(np.asarray(v, np.float32)) for k, v in cols.items()}
+            self.info = mi.UInt32(tree.info)
+            self.depth = mi.UInt32(tree.depth)
+            self.trail_lo, self.trail_hi = mi.UInt32(trail_lo), mi.UInt32(trail_hi)
+        else:
+            self.col = {k: np.asarray(v, np.float32) for k, v in cols.items()}
+            self.info, self.depth = tree.info, tree.depth
+            self.trail_lo, self.trail_hi = trail_lo, trail_hi
+
+    def _get(self, arr, idx, dtype=None, active=True):
+        if is_jit():
+            return dr.gather(dtype or mi.Float, arr, idx, active)
+        return (int if dtype is mi.UInt32 else float)(arr[int(idx)])
+
+    def importance(self, node, p, n, active=True):
+        """pbrt-v4's LightBounds::Importance of ``node`` at point p with surface normal n."""
+        g = {k: self._get(v, node, active=active) for k, v in self.col.items()}
+        lo = mi.Point3f(g["lx"], g["ly"], g["lz"])
+        hi = mi.Point3f(g["hx"], g["hy"], g["hz"])
+        pc = 0.5 * (lo + hi)
+        d = p - pc
+        d2 = dr.squared_norm(d)
+        r2 = 0.25 * dr.squared_norm(hi - lo)
+        inv = dr.rsqrt(dr.maximum(d2, 1e-30))
+        wi = d * inv                                   # from the light towards p
+        cos_w = dr.dot(mi.Vector3f(g["wx"], g["wy"], g["wz"]), wi)
+        cos_w = dr.select(g["two"] > 0.5, dr.abs(cos_w), cos_w)
+        sin_w = dr.safe_sqrt(1.0 - cos_w * cos_w)
+        # half-angle subtended by the bounding sphere of the box (whole sphere inside it)
+        inside = d2 < r2
+        cos_b = dr.select(inside, -1.0, dr.safe_sqrt(1.0 - r2 / dr.maximum(d2, 1e-30)))
+        sin_b = dr.select(inside, 0.0, dr.safe_sqrt(1.0 - cos_b * cos_b))
+        cos_o, sin_o = g["cos_o"], g["sin_o"]
+        # theta_x = max(theta_w - theta_o, 0); theta' = max(theta_x - theta_b, 0)
+        cos_x = dr.select(cos_w > cos_o, 1.0, cos_w * cos_o + sin_w * sin_o)
+        sin_x = dr.select(cos_w > cos_o, 0.0, sin_w * cos_o - cos_w * sin_o)
+        cos_p = dr.select(cos_x > cos_b, 1.0, cos_x * cos_b + sin_x * sin_b)
+        imp = g["phi"] * dr.maximum(cos_p, RECEIVER_FLOOR) / dr.maximum(dr.maximum(d2, r2), 1e-12)
+        imp = dr.select(cos_p > g["cos_e"] - COS_E_SLACK, imp, 0.0)
+        cos_i = dr.abs(dr.dot(wi, n))
+        sin_i = dr.safe_sqrt(1.0 - cos_i * cos_i)
+        cos_pi = dr.select(cos_i > cos_b, 1.0, cos_i * cos_b + sin_i * sin_b)
+        has_n = dr.squared_norm(n) > 0
+        imp = imp * dr.select(has_n, dr.maximum(cos_pi, RECEIVER_FLOOR), 1.0)
+        return dr.select(active, imp, 0.0)
+
+    def _children(self, node, p, n, active):
+        c0 = self._get(self.info, node, mi.UInt32, active)
+        i0 = self.importance(c0, p, n, active)
+        i1 = self.importance(c0 + 1, p, n, active)
+        return c0, i0, i1
+
+    @dr.syntax
+    def traverse(self, p, n, u, active=True):
+        """Choose a light: (light index, pmf); pmf 0 (and index 0) where every importance on
+        the way is 0 or the lane is inactive."""
+        node = mi.UInt32(0)
+        pmf = mi.Float(1.0)
+        u = mi.Float(u)
+        active = mi.Bool(active)
+        info = self._get(self.info, node, mi.UInt32, active)
+        go = active & ((info & int(LEAF)) == 0)
+        while dr.hint(go, label="light tree: traverse"):
+            c0, i0, i1 = self._children(node, p, n, go)
+            total = i0 + i1
+            ok = total > 0
+            p0 = i0 / dr.select(ok, total, 1.0)
+            left = u < p0
+            chosen = dr.select(left, i0, i1)
+            pmf = dr.select(ok, pmf * (chosen / dr.select(ok, total, 1.0)), 0.0)
+            u = dr.select(left, u / dr.select(left, p0, 1.0),
+                          (u - p0) / dr.select(left, 1.0, 1.0 - p0))
+            u = dr.minimum(u, ONE_MINUS_EPS)
+            node = dr.select(left, c0, c0 + 1)
+            info = self._get(self.info, node, mi.UInt32, go)
+            go = go & ok & ((info & int(LEAF)) == 0)
+        light = info & int(~LEAF & 0xFFFFFFFF)
+        pmf = dr.select(active & ((info & int(LEAF)) != 0), pmf, 0.0)
+        return dr.select(pmf > 0, light, 0), pmf
+
+    @dr.syntax
+    def pmf(self, light, p, n, active=True):
+        """Probability that :meth:`traverse` at (p, n) picks ``light``, by walking its bit trail
+        from the root."""
+        active = mi.Bool(active)
+        depth = self._get(self.depth, light, mi.UInt32, active)
+        lo = self._get(self.trail_lo, light, mi.UInt32, active)
+        hi = self._get(self.trail_hi, light, mi.UInt32, active)
+        node = mi.UInt32(0)
+        pmf = mi.Float(1.0)
+        k = mi.UInt32(0)
+        go = active & (k < depth)
+        while dr.hint(go, label="light tree: pmf"):
+            c0, i0, i1 = self._children(node, p, n, go)
+            total = i0 + i1
+            ok = total > 0
+            word = dr.select(k < 32, lo, hi)
+            right = ((word >> (k & 31)) & 1) == 1
+            chosen = dr.select(right, i1, i0)
+            pmf = dr.select(ok, pmf * (chosen / dr.select(ok, total, 1.0)), 0.0)
+            node = dr.select(right, c0 + 1, c0)
+            k += 1
+            go = go & ok & (k < depth)
+        return dr.select(active, pmf, 0.0)
+
+
+# ---------------------------------------------------------------------------------------------
+# the scene's lights as leaves
+INFINITE, TREE, NONE = 0, 1, 2
+
+
+def _mesh_cone(shape):
+    """(axis, cos theta_o) of a cone around the face normals (and vertex normals, if any) of a
+    mesh, to be used two-sided; cos = -1 (entire sphere) when they do not fit."""
+    try:
+        v = np.array(shape.vertex_positions_buffer(), dtype=np.float64).reshape(-1, 3)
+        f = np.array(shape.faces_buffer(), dtype=np.int64).reshape(-1, 3)
+    except Exception:    # not a triangle mesh we can read
+        return np.array([0.0, 0.0, 1.0]), -1.0
+    nrm = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+    length = _norm(nrm)
+    nrm = nrm[length > 0] / length[length > 0][:, None]
+    if shape.has_vertex_normals():
+        vn = np.array(shape.vertex_normals_buffer(), dtype=np.float64).reshape(-1, 3)
+        ln = _norm(vn)
+        nrm = np.concatenate([nrm, vn[ln > 0] / ln[ln > 0][:, None]])
+    if not len(nrm):
+        return np.array([0.0, 0.0, 1.0]), -1.0
+    # two-sided: orient every normal to the hemisphere of the first one, then bound them
+    nrm = np.where((nrm @ nrm[0] < 0)[:, None], -nrm, nrm)
+    axis, cos = mean_axis_cone(nrm, np.ones(len(nrm)), np.zeros(len(nrm), np.int64), 1)
+    return axis[0], float(cos[0])
+
+
+def light_leaves(scene, emitters, power, first_normal):
+    """Per emitter: its kind (INFINITE, TREE, NONE = zero power) and leaf bounds (numpy):
+    box lo, hi, cone axis w, cos theta_o, cos theta_e, two-sided flag."""
+    n = len(emitters)
+    kind = np.full(n, TREE)
+    lo, hi = np.zeros((n, 3)), np.zeros((n, 3))
+    w = np.tile([0.0, 0.0, 1.0], (n, 1))
+    cos_o, cos_e = np.full(n, -1.0), np.zeros(n)
+    two = np.zeros(n, bool)
+    point_like = []
+    flat = {int(mi.ShapeType.Rectangle), int(mi.ShapeType.Disk)}
+    for j, e in enumerate(emitters):
+        if mi.has_flag(e.flags(), mi.EmitterFlags.Infinite):
+            kind[j] = INFINITE
+            continue
+        shape = e.get_shape()
+        if shape is None:
+            point_like.append(j)
+            continue
+        box = shape.bbox()
+        lo[j], hi[j] = np.array(box.min, float).ravel(), np.array(box.max, float).ravel()
+        st = int(shape.shape_type())
+        if st in flat:                           # one normal, emission on its front side
+            w[j], cos_o[j] = first_normal[j], 1.0
+        elif st == int(mi.ShapeType.Mesh):
+            w[j], cos_o[j] = _mesh_cone(shape)
+            two[j] = True
+    if point_like:
+        # positions of point, spot and projector lights: where they send light from
+        idx = np.array(point_like)
+        bs = scene.bbox().bounding_sphere()
+        far = (np.array(bs.center, float).ravel()
+               + [0.0, 0.0, 2 * max(float(np.array(bs.radius).ravel()[0]), 1.0)])
+        if is_jit():
+            it = dr.zeros(mi.Interaction3f, len(idx))
+            it.p = mi.Point3f(*[float(x) for x in far])
+            em = dr.gather(mi.EmitterPtr, scene.emitters_dr(), mi.UInt32(idx.astype(np.uint32)))
+            ds, _ = em.sample_direction(it, mi.Point2f(0.5, 0.5), True)
+            pos = np.array(ds.p, dtype=np.float64).reshape(3, -1).T
+        else:
+            it = dr.zeros(mi.Interaction3f)
+            it.p = mi.Point3f(*[float(x) for x in far])
+            pos = np.array([np.array(emitters[j].sample_direction(
+                it, mi.Point2f(0.5, 0.5), True)[0].p, float).ravel()[:3] for j in idx])
+        lo[idx] = hi[idx] = pos
+    finite_ok = np.isfinite(power) & (power > 0)
+    kind[(kind == TREE) & ~finite_ok] = NONE
+    kind[(kind == INFINITE) & ~finite_ok] = NONE
+    return kind, lo, hi, w, cos_o, cos_e, two
+
+
+class LightTreeSelection(LightSelection):
+    """``light_selection=bvh``: infinite emitters outside the tree, the others chosen by
+    traversing the light BVH at the shading point (module docstring)."""
+
+    def __init__(self, scene):
+        super().__init__(scene, "power")
+        self.mode = "bvh"
+        if self.count == 0:
+            return
+        power, first_n = self.power, self._first_normal
+        kind, lo, hi, w, cos_o, cos_e, two = light_leaves(scene, self.emitters, power, first_n)
+        if not np.any(kind != NONE):
+            # every power estimate failed: all finite lights with power 1, like uniform
+            fin = np.array([not mi.has_flag(e.flags(), mi.EmitterFlags.Infinite)
+                            for e in self.emitters])
+            kind = np.where(fin, TREE, INFINITE)
+            power = np.ones(self.count)
+        self.kind = kind
+        tree_idx = np.nonzero(kind == TREE)[0]
+        inf_idx = np.nonzero(kind == INFINITE)[0]
+        self.n_tree, self.n_inf = len(tree_idx), len(inf_idx)
+        self.p_inf = self.n_inf / (self.n_inf + (1 if self.n_tree else 0)) if self.n_inf else 0.0
+        self.tree = None
+        if self.n_tree:
+            t = tree_idx
+            self.tree_np = build(lo[t], hi[t], w[t], cos_o[t], cos_e[t], two[t], power[t])
+            self.tree = DeviceTree(self.tree_np)
+        # lookup tables: tree light -> emitter, infinite slot -> emitter, emitter -> slot
+        slot = np.zeros(self.count, np.uint32)
+        slot[tree_idx] = np.arange(self.n_tree)
+        slot[inf_idx] = np.arange(self.n_inf)
+        self.tree_index = tree_idx
+        if is_jit():
+            ids = np.array(dr.reinterpret_array(mi.UInt32, self.emitters_dr), dtype=np.int64)
+            size = int(ids.max()) + 1
+            kind_by_id = np.full(size, NONE, np.uint32)
+            kind_by_id[ids] = kind
+            slot_by_id = np.zeros(size, np.uint32)
+            slot_by_id[ids] = slot
+            self.kind_by_id, self.slot_by_id = mi.UInt32(kind_by_id), mi.UInt32(slot_by_id)
+            self.tree_emitter = mi.UInt32(tree_idx.astype(np.uint32))
+            self.inf_emitter = mi.UInt32(inf_idx.astype(np.uint32))
+        else:
+            self.by_ptr = {e.ptr: (int(kind[j]), int(slot[j])) for j, e in enumerate(self.emitters)}
+            self.tree_emitter, self.inf_emitter = tree_idx, inf_idx
+
+    def _measure_power(self, scene):
+        power, self._first_normal = emitter_powers(scene, self.emitters, normals=True)
+        return power
+
+    # the interface of LightSelection (sample_direction and pdf_direction are inherited)
+    def sample(self, sample1, active=True):
+        raise NotImplementedError("bvh selection needs the shading point: use choose")
+
+    def _emitter(self, idx, active):
+        if is_jit():
+            return dr.gather(mi.EmitterPtr, self.emitters_dr, idx, active)
+        return self.emitters[int(idx)]
+
+    def choose(self, si, sample1, active=True):
+        """(EmitterPtr, p(j | si), None): an infinite emitter with probability p_inf, else the
+        light the tree traversal at (si.p, si.n) reaches."""
+        if self.count == 0:
+            return self._emitter(0, False) if is_jit() else None, mi.Float(0.0), None
+        p_inf = self.p_inf
+        u = mi.Float(sample1)
+        if self.n_inf:
+            use_inf = u < p_inf
+            j = dr.minimum(mi.UInt32(u / p_inf * self.n_inf), self.n_inf - 1)
+            u = dr.minimum((u - p_inf) / (1.0 - p_inf), ONE_MINUS_EPS) if p_inf < 1 else u
+        else:
+            use_inf, j = mi.Bool(False), mi.UInt32(0)
+        if self.tree is not None:
+            leaf, pmf_t = self.tree.traverse(si.p, si.n, u, active & ~use_inf)
+        else:
+            leaf, pmf_t = mi.UInt32(0), mi.Float(0.0)
+        if is_jit():
+            e_inf = dr.gather(mi.UInt32, self.inf_emitter, j, use_inf) if self.n_inf else j
+            e_tree = (dr.gather(mi.UInt32, self.tree_emitter, leaf, ~use_inf)
+                      if self.n_tree else leaf)
+        else:
+            e_inf = int(self.inf_emitter[j]) if self.n_inf else 0
+            e_tree = int(self.tree_emitter[leaf]) if self.n_tree else 0
+        idx = dr.select(use_inf, e_inf, e_tree)
+        pmf = dr.select(use_inf, p_inf / max(self.n_inf, 1), (1.0 - p_inf) * pmf_t)
+        pmf = dr.select(active, pmf, 0.0)
+        ok = active & (pmf > 0)
+        if not is_jit() and not ok:
+            return None, 0.0, None
+        return self._emitter(idx, ok), pmf, None
+
+    def pmf_at(self, si, emitter, active=True, norm=None):
+        """p(j | si) of ``emitter``: the root-to-leaf walk of its bit trail for a tree light,
+        p_inf / n_inf for an infinite one, 0 for an emitter never chosen."""
+        if self.count == 0:
+            return mi.Float(0.0)
+        if is_jit():
+            ids = dr.reinterpret_array(mi.UInt32, emitter)
+            active = active & (ids != 0)
+            kind = dr.gather(mi.UInt32, self.kind_by_id, ids, active)
+            slot = dr.gather(mi.UInt32, self.slot_by_id, ids, active)
+        else:
+            if emitter is None or not active:
+                return 0.0
+            kind, slot = self.by_ptr.get(emitter.ptr, (NONE, 0))
+        pmf = dr.select(kind == INFINITE, self.p_inf / max(self.n_inf, 1), 0.0)
+        if self.tree is not None:
+            in_tree = active & (kind == TREE)
+            if is_jit() or in_tree:
+                pmf_t = self.tree.pmf(slot, si.p, si.n, in_tree)
+                pmf = dr.select(in_tree, (1.0 - self.p_inf) * pmf_t, pmf)
+        return dr.select(active, pmf, 0.0)
