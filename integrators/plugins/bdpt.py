@@ -1,0 +1,413 @@
+r"""Integrator ``bdpt``: bidirectional path tracing (Veach 1997, ch. 10).
+
+Every camera sample traces a **light subpath** y_0 y_1 ... (a light chosen by
+``light_selection``, a point on it, a direction, then BSDF sampling in importance mode) and a
+**camera subpath** z_0 z_1 ... (the camera ray, then BSDF sampling), both with Russian roulette,
+and combines every strategy (s, t) (s light vertices, t camera vertices) that builds a path of at
+most ``max_depth`` segments (s + t - 1):
+
+* s = 0: the camera subpath hits an area light;
+* s = 1: next-event estimation at camera vertex z_{t-1} (a fresh light sample, as pbrt-v4);
+* t = 1: light tracing: each smooth light vertex y_i (i >= 1) is connected to the pinhole and its
+  contribution splatted onto the film at the pixel it projects to (an image block with atomic
+  adds, Mitsuba's ``ptracer`` normalisation: 1/spp, the sensor's importance);
+* s, t >= 2: a shadow ray between y_{s-1} and z_{t-1} (both with a smooth lobe).
+
+The strategy s = 1, t = 1 (a point on a light projected onto the film) is not used: emitters seen
+directly come from s = 0 alone, with weight 1 (as in SmallVCM).
+
+**MIS**: ``heuristic`` = ``balance`` | ``power`` (exponent ``beta``) over all strategies of a path,
+computed with the ratio recurrences of :mod:`integrators.sampling.subpath` (two running sums
+per vertex, updated as the walks go; no strategy's full density is re-evaluated).  Strategies
+that cannot produce a path get weight zero: a delta lobe (mirror, glass, null interface) cannot
+be an end of a connection, a delta light (point, spot) cannot be hit, the pinhole cannot be hit.
+The light-tracing strategies take the camera's film-wide directional density, so with one light
+subpath per camera sample no count factor enters the weights.
+
+**Vertex cap**: light vertices are stored per lane and depth in flat Dr.Jit arrays
+(``lane * cap + k``) with ``cap = max_depth - 2``, so ``max_depth`` must be finite: its default
+is 8 and -1 (unlimited) is refused; 2 <= ``max_depth`` <= 64 (1: emitters seen directly, 0:
+nothing, as Mitsuba).  Storage is about (27 + channels) x 4 bytes per vertex; renders with more
+samples than fit in ``MEMORY_BUDGET`` are done in chunks of whole samples per pixel (each with its
+own seed) inside one ``render`` call.
+
+**Scope**: area lights (uniform position on the shape; textured emitters refused), point and
+spot lights; environment and directional emitters are refused in one line (no bidirectional
+strategy for infinite emitters yet; render them with ``nee_path``).  The sensor must be a
+``perspective`` camera (pinhole).  JIT variants only (``llvm_*``/``cuda_*``, RGB or mono);
+scalar and spectral variants are refused in one line.  No media.
+
+``render()`` does the work (``mi.render`` and the ``render`` command call it); ``sample()`` is
+not used: a per-camera-sample estimate cannot hold the light-tracing splats.
+"""
+from __future__ import annotations
+
+import drjit as dr
+import mitsuba as mi
+
+from ..common import emitted, is_jit, safe_div
+from ..params import Param
+from ..registry import plugin
+from ..sampling import light_selection, roulette
+from ..sampling.subpath import (EmitterTables, LightWalk, Mis, VertexStore, finite_weight,
+                                is_delta_sample, reverse_pdf, shading_correction,
+                                spectrum_channels)
+from .base import IntegratorTemplate, SceneError
+
+MAX_BDPT_DEPTH = 64
+#: bytes of stored light vertices per chunk of samples (chunks hold whole samples per pixel)
+MEMORY_BUDGET = 256 << 20
+
+
+@plugin("bdpt", "integrator")
+class BDPT(IntegratorTemplate):
+    """Bidirectional path tracing: every (s, t) strategy, balance/power MIS by ratio recurrences."""
+
+    PARAMS = (
+        Param("max_depth", "int", 8, min=0, max=MAX_BDPT_DEPTH,
+              doc="Longest path depth in segments (1: emitters seen directly; finite: light "
+                  "vertices are stored per depth)."),
+        *roulette.RR_PARAMS,
+        Param("heuristic", "choice", "power", choices=("balance", "power"),
+              doc="MIS weighting over the (s, t) strategies."),
+        Param("beta", "float", 2.0, min=0.0, min_exclusive=True,
+              doc="Exponent of the power heuristic."),
+        Param("light_selection", "choice", "power", choices=("uniform", "power"),
+              doc="Discrete pdf for choosing the light of a light subpath and of a light "
+                  "sample."),
+    )
+
+    def setup(self):
+        self.mis = Mis(self.heuristic, self.beta)
+        self.rr = roulette.Roulette.from_params(self.params)
+        self.lights = light_selection.SelectionCache(self.light_selection)
+        self._tables = (None, None)
+
+    # ---- checks ---------------------------------------------------------------------------
+    def check_support(self, scene, sensor):
+        name = self.NAME
+        if not is_jit():
+            raise SceneError(f"{name}: variant {mi.variant()} is not supported; use a JIT "
+                             "variant (llvm_ad_rgb, llvm_ad_mono, cuda_ad_rgb)")
+        if mi.is_spectral or mi.is_polarized:
+            raise SceneError(f"{name}: variant {mi.variant()} is not supported (the two "
+                             "subpaths would need shared wavelengths); use llvm_ad_rgb")
+        kind = str(sensor).split("[", 1)[0]
+        if kind not in ("PerspectiveCamera", "RadianceMeter"):
+            raise SceneError(f"{name}: sensor {kind} is not supported; allowed: a "
+                             "'perspective' camera or a 'radiancemeter'")
+        if mi.has_flag(sensor.film().flags(), mi.FilmFlags.Special):
+            raise SceneError(f"{name}: film {str(sensor.film()).split('[', 1)[0]} is not "
+                             "supported; use 'hdrfilm'")
+        for e in scene.emitters():
+            if mi.has_flag(e.flags(), mi.EmitterFlags.Infinite):
+                kind = str(e).split("[", 1)[0]
+                raise SceneError(f"{name}: emitter {kind} (infinite) is not supported; "
+                                 "allowed: area, point and spot lights (use nee_path)")
+            shape = e.get_shape()
+            if shape is not None and not _uniform_on_shape(e, shape):
+                raise SceneError(f"{name}: area emitter on shape '{shape.id()}' has a "
+                                 "spatially varying radiance; allowed: constant radiance")
+
+    def tables(self, scene):
+        if self._tables[0] is not scene:
+            self._tables = (scene, EmitterTables(scene))
+        return self._tables[1]
+
+    def sample(self, scene, sampler, ray, medium=None, active=True):
+        raise SceneError("bdpt renders through render() (mi.render, the render command): its "
+                         "light-tracing strategies splat onto the film")
+
+    # ---- render ---------------------------------------------------------------------------
+    def render(self, scene, sensor=0, seed=0, spp=0, develop=True, evaluate=True):
+        if isinstance(sensor, int):
+            sensor = scene.sensors()[sensor]
+        sel = self.prepare(scene)
+        self.check_support(scene, sensor)
+        film = sensor.film()
+        spp = int(spp) or int(sensor.sampler().sample_count())
+        film.prepare([])
+        block = film.create_block()
+        block.set_offset(film.crop_offset())
+        block_lt = film.create_block(mi.ScalarVector2u(0), True, False)
+        block_lt.set_offset(film.crop_offset())
+        block_lt.set_coalesce(False)
+        if len(scene.emitters()) == 0 or self.max_depth == 0:
+            film.put_block(block)
+            return film.develop() if develop else None
+        crop = film.crop_size()
+        pixels = int(crop[0]) * int(crop[1])
+        cap = max(self.max_depth - 2, 0)
+        per_lane = max(cap, 1) * (27 + spectrum_channels()) * 4
+        spp_chunk = max(1, min(spp, MEMORY_BUDGET // max(per_lane * pixels, 1)))
+        done, chunk = 0, 0
+        while done < spp:
+            n = min(spp_chunk, spp - done)
+            chunk_seed = (int(seed) + chunk * 0x9E3779B9) & 0xFFFFFFFF
+            self.render_chunk(scene, sensor, sel, block, block_lt, n, spp, chunk_seed, cap)
+            done += n
+            chunk += 1
+        combined = _combine(block, block_lt)
+        film.put_block(mi.ImageBlock(combined, film.crop_offset(), film.rfilter(),
+                                     False, False))
+        if not develop:
+            film.schedule_storage()
+            return None
+        img = film.develop()
+        if evaluate:
+            dr.eval(img)
+        return img
+
+    def render_chunk(self, scene, sensor, sel, block, block_lt, spp, spp_total, seed, cap):
+        film = sensor.film()
+        crop = film.crop_size()
+        lanes = int(crop[0]) * int(crop[1]) * spp
+        sampler = sensor.sampler().clone()
+        sampler.set_sample_count(spp)
+        sampler.set_samples_per_wavefront(spp)
+        sampler.seed(seed, lanes)
+        lane = dr.arange(mi.UInt32, lanes)
+        tables = self.tables(scene)
+        store = VertexStore(lanes, cap)
+
+        # 1. light subpaths: stored vertices, light tracing onto the film (t = 1)
+        pinhole = _is_pinhole(sensor)
+        if self.max_depth >= 2:
+            walk = LightWalk(self.mis, self.rr, self.max_depth - 1, self.max_depth - 2)
+            scale = 1.0 / spp_total
+            splat = self.light_tracer(scene, sensor, sampler, block_lt, scale) if pinhole \
+                else None
+            walk.walk(scene, sel, tables, sampler, store, lane, mi.Bool(True), splat)
+        store.evaluate()
+        sampler.schedule_state()
+        dr.eval(block_lt.tensor())
+
+        # 2. camera subpaths: s = 0, s = 1 and the connections s, t >= 2
+        ray, weight, pos = _camera_rays(sensor, sampler, spp)
+        L, valid = self.camera_walk(scene, sel, tables, sensor, sampler, store, lane, ray)
+        rgb = _to_rgb(L * weight)
+        values = [rgb[0], rgb[1], rgb[2]]
+        if mi.has_flag(film.flags(), mi.FilmFlags.Alpha):
+            values.append(dr.select(valid, mi.Float(1.0), mi.Float(0.0)))
+        values.append(mi.Float(1.0))
+        block.put(pos, values)
+        dr.eval(block.tensor())
+
+    def light_tracer(self, scene, sensor, sampler, block_lt, scale):
+        """The t = 1 strategy at a light vertex: connect to the pinhole, weight, splat."""
+        mis, max_depth = self.mis, self.max_depth
+        alpha = mi.has_flag(sensor.film().flags(), mi.FilmFlags.Alpha)
+        offset = mi.Vector2f(block_lt.offset())
+
+        def splat(si, bsdf, beta, dvcm, dvc, depth, active):
+            ctx = mi.BSDFContext(mi.TransportMode.Importance)
+            u = sampler.next_2d(active)
+            active = active & (depth + 1 <= max_depth)
+            ds, w_s = sensor.sample_direction(si, u, active)
+            active &= ds.pdf > 0
+            wo = si.to_local(ds.d)
+            f = bsdf.eval(ctx, si, wo, active) * shading_correction(si, ds.d)
+            p_rev = reverse_pdf(bsdf, ctx, si, wo, active)
+            p_cam = mi.unpolarized_spectrum(w_s)[0] * dr.abs(dr.dot(si.n, ds.d))
+            w = finite_weight(1.0 + mis(p_cam) * (dvcm + dvc * mis(p_rev)))
+            value = beta * f * w_s * (w * scale)
+            active &= dr.any(value != 0)
+            active &= ~scene.ray_test(si.spawn_ray_to(ds.p), active)
+            rgb = _to_rgb(value)
+            vals = [rgb[0], rgb[1], rgb[2]] + ([mi.Float(0.0)] if alpha else []) + \
+                [mi.Float(0.0)]
+            block_lt.put(ds.uv + offset, vals, active)
+        return splat
+
+    @dr.syntax
+    def camera_walk(self, scene, sel, tables, sensor, sampler, store, lane, ray):
+        mis, max_depth = self.mis, self.max_depth
+        pinhole = _is_pinhole(sensor)
+        ctx = mi.BSDFContext()
+        L = mi.Spectrum(0.0)
+        beta = mi.Spectrum(1.0)
+        eta = mi.Float(1.0)
+        dvcm = mi.Float(0.0)
+        dvc = mi.Float(0.0)
+        depth = mi.UInt32(1)
+        prev_p = mi.Point3f(ray.o)
+        prev_n = mi.Normal3f(0.0)
+        ray = mi.Ray3f(ray)
+        active = mi.Bool(True)
+        valid = mi.Bool(False)
+        while dr.hint(active, label="bdpt camera walk"):
+            si = scene.ray_intersect(ray, active)
+            hit = active & si.is_valid()
+            first = depth == 1
+            valid |= first & hit
+            cos_in = dr.abs(dr.dot(si.n, ray.d))
+            dist2 = dr.square(si.t)
+            # the first hit: light tracing's density relative to the camera's (0 for a
+            # radiancemeter, whose delta direction no light subpath can reach)
+            if dr.hint(pinhole, mode="scalar"):
+                ds_c, w_c = sensor.sample_direction(si, mi.Point2f(0.5), hit & first)
+                p_film = mi.unpolarized_spectrum(w_c)[0] * dr.square(ds_c.dist)
+                dvcm = dr.select(first, mis(safe_div(1.0, p_film)), dvcm)
+            else:
+                dvcm = dr.select(first, 0.0, dvcm)
+            dvcm *= mis(dist2)
+            inv_cos = mis(safe_div(1.0, cos_in))
+            dvcm *= inv_cos
+            dvc *= inv_cos
+
+            # s = 0: the camera subpath hits an area light
+            em = si.emitter(scene)
+            le = emitted(scene, si, hit)
+            hit_light = hit & dr.any(le != 0)
+            _, pos_pdf, _ = tables.lookup(em, hit_light)
+            pick = sel.pmf(em, hit_light)
+            it_prev = dr.zeros(mi.Interaction3f)
+            it_prev.p, it_prev.n = prev_p, prev_n
+            ds_e = mi.DirectionSample3f(scene, si, it_prev)
+            p_nee = em.pdf_direction(it_prev, ds_e, hit_light & ~first)
+            direct_a = pick * p_nee * cos_in * safe_div(1.0, dist2)
+            emission_w = pick * pos_pdf * cos_in * dr.inv_pi
+            w0 = dr.select(first, 1.0,
+                           finite_weight(1.0 + mis(direct_a) * dvcm + mis(emission_w) * dvc))
+            L += dr.select(hit_light, beta * le * w0, 0.0)
+
+            bsdf = si.bsdf(ray)
+            smooth = hit & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
+
+            # s = 1: next-event estimation
+            nee = smooth & (depth + 1 <= max_depth)
+            ds_l, w_em, _ = sel.sample_direction(si, sampler.next_1d(nee), sampler.next_2d(nee),
+                                                 nee)
+            vis = nee & dr.any(w_em != 0)
+            vis &= ~scene.ray_test(si.spawn_ray_to(ds_l.p), vis)
+            wo_l = si.to_local(ds_l.d)
+            f_l, p_fwd_l = bsdf.eval_pdf(ctx, si, wo_l, vis)
+            p_rev_l = reverse_pdf(bsdf, ctx, si, wo_l, vis)
+            is_area_l, pos_pdf_l, dir_pdf_l = tables.lookup(ds_l.emitter, vis)
+            pick_l = sel.pmf(ds_l.emitter, vis)
+            p_nee_w = safe_div(ds_l.pdf, pick_l)
+            cos_z = dr.abs(dr.dot(si.n, ds_l.d))
+            ratio = dr.select(is_area_l, safe_div(pos_pdf_l * cos_z, dr.pi * p_nee_w),
+                              dir_pdf_l * cos_z * safe_div(1.0, dr.square(ds_l.dist)))
+            w_light = dr.select(ds_l.delta, 0.0, mis(safe_div(p_fwd_l, ds_l.pdf)))
+            w_cam = mis(ratio) * (dvcm + dvc * mis(p_rev_l))
+            w1 = finite_weight(w_light + 1.0 + w_cam)
+            L += dr.select(vis, beta * f_l * w_em * w1, 0.0)
+
+            # s >= 2, t >= 2: connections to the stored light vertices
+            conn = smooth & (depth + 2 <= max_depth)
+            L += self.connect(scene, store, lane, si, bsdf, beta, dvcm, dvc, depth, conn)
+
+            # continue: BSDF sample in radiance mode
+            bs, w = bsdf.sample(ctx, si, sampler.next_1d(hit), sampler.next_2d(hit), hit)
+            spec = is_delta_sample(bs)
+            wo = si.to_world(bs.wo)
+            p_rev = reverse_pdf(bsdf, ctx, si, bs.wo, hit & ~spec)
+            cos_out = dr.abs(dr.dot(si.n, wo))
+            dvc = dr.select(spec, dvc * mis(cos_out),
+                            mis(safe_div(cos_out, bs.pdf)) * (dvc * mis(p_rev) + dvcm))
+            dvcm = dr.select(spec, 0.0, mis(safe_div(1.0, bs.pdf)))
+            beta *= w
+            eta *= bs.eta
+            active = hit & ((bs.pdf > 0) | spec)
+            beta, active = self.rr(beta, eta, depth, sampler.next_1d(active), active)
+            prev_p, prev_n = mi.Point3f(si.p), mi.Normal3f(si.n)
+            ray = si.spawn_ray(wo)
+            depth += 1
+            active &= depth <= max_depth
+        return L, valid
+
+    @dr.syntax
+    def connect(self, scene, store, lane, si, bsdf, beta, dvcm, dvc, depth, active):
+        """Sum over the stored light vertices y_k of the weighted connection z -- y_k."""
+        mis, max_depth = self.mis, self.max_depth
+        ctx = mi.BSDFContext()
+        ctx_l = mi.BSDFContext(mi.TransportMode.Importance)
+        L = mi.Spectrum(0.0)
+        n = dr.gather(mi.UInt32, store.count, lane, active)
+        k = mi.UInt32(0)
+        while dr.hint(active & (k < n), label="bdpt connections"):
+            act = active & (k < n)
+            sy, bsdf_y, beta_y, dvcm_y, dvc_y, depth_y = store.get(lane * store.cap + k, act)
+            ok = act & (depth_y + depth + 1 <= max_depth)
+            d = sy.p - si.p
+            dist2 = dr.squared_norm(d)
+            dirn = d * dr.rsqrt(dr.select(dist2 > 0, dist2, 1.0))
+            ok &= dist2 > 0
+            wo_c = si.to_local(dirn)
+            f_c, p_c = bsdf.eval_pdf(ctx, si, wo_c, ok)
+            p_c_rev = reverse_pdf(bsdf, ctx, si, wo_c, ok)
+            wo_y = sy.to_local(-dirn)
+            f_y, p_y = bsdf_y.eval_pdf(ctx_l, sy, wo_y, ok)
+            p_y_rev = reverse_pdf(bsdf_y, ctx_l, sy, wo_y, ok)
+            inv_d2 = safe_div(1.0, dist2)
+            cos_c = dr.abs(dr.dot(si.n, dirn))
+            cos_y = dr.abs(dr.dot(sy.n, dirn))
+            w_light = mis(p_c * cos_y * inv_d2) * (dvcm_y + dvc_y * mis(p_y_rev))
+            w_cam = mis(p_y * cos_c * inv_d2) * (dvcm + dvc * mis(p_c_rev))
+            w = finite_weight(w_light + 1.0 + w_cam)
+            contrib = beta * f_c * f_y * shading_correction(sy, -dirn) * beta_y * (w * inv_d2)
+            ok &= dr.any(contrib != 0)
+            ok &= ~scene.ray_test(si.spawn_ray_to(sy.p), ok)
+            L += dr.select(ok, contrib, 0.0)
+            k += 1
+        return L
+
+
+def _is_pinhole(sensor) -> bool:
+    return str(sensor).startswith("PerspectiveCamera")
+
+
+def _uniform_on_shape(emitter, shape) -> bool:
+    """Whether the area emitter samples positions uniformly on its shape (constant radiance)."""
+    import numpy as np
+    n = 16
+    u = mi.Point2f(dr.linspace(mi.Float, 0.1, 0.9, n), dr.linspace(mi.Float, 0.8, 0.2, n))
+    ps, _ = emitter.sample_position(0.0, u, True)
+    pdf = np.array(ps.pdf, dtype=np.float64).ravel()
+    area = float(shape.surface_area()[0])
+    return bool(np.allclose(pdf * area, 1.0, rtol=1e-3))
+
+
+def _to_rgb(value):
+    value = mi.unpolarized_spectrum(value)
+    if mi.is_monochromatic:
+        return mi.Color3f(value[0])
+    return value
+
+
+def _camera_rays(sensor, sampler, spp):
+    """Camera rays of a chunk: ``spp`` per pixel, in pixel order (as Mitsuba's render)."""
+    film = sensor.film()
+    size = film.crop_size()
+    idx = dr.arange(mi.UInt32, int(size[0]) * int(size[1]) * spp)
+    idx //= dr.opaque(mi.UInt32, spp)
+    pos = mi.Vector2i()
+    pos.y = mi.Int32(idx // int(size[0]))
+    pos.x = mi.Int32(idx - mi.UInt32(pos.y) * int(size[0]))
+    pos += mi.Vector2i(film.crop_offset())
+    pos_f = mi.Vector2f(pos) + sampler.next_2d()
+    scale = dr.rcp(mi.ScalarVector2f(size))
+    offset = -mi.ScalarVector2f(film.crop_offset()) * scale
+    ray, weight = sensor.sample_ray_differential(0.0, 0.5, dr.fma(pos_f, scale, offset),
+                                                 mi.Point2f(0.5))
+    splat = mi.Vector2f(pos) if film.rfilter().is_box_filter() else pos_f
+    return mi.Ray3f(ray), weight, splat
+
+
+def _combine(block, block_lt):
+    """The camera block with the light-tracing sums added to its colour channels, scaled by
+    the pixel's filter weight (so that the film's weight division leaves them as they are)."""
+    t = block.tensor()
+    lt = block_lt.tensor()
+    shape = t.shape
+    ch = shape[2]
+    w_idx = ch - 1                       # ... [A] W (no AOVs)
+    data = t.array
+    idx = dr.arange(mi.UInt32, dr.width(data))
+    c = idx % ch
+    pix = idx // ch
+    w = dr.gather(mi.Float, data, pix * ch + w_idx)
+    add = dr.gather(mi.Float, lt.array, pix * lt.shape[2] + c, c < 3)
+    out = data + dr.select(c < 3, add * w, 0.0)
+    return mi.TensorXf(out, shape)
