@@ -18,6 +18,14 @@ The lecture's estimator with each degree of freedom of its last slide as a param
   integrator traces ``split`` paths per camera sample (``paths_per_sample``), which cost
   comparisons must count.
 
+* **Efficiency-aware roulette and splitting** (``rr=adaptive``, EARS: Rath et al. 2022): at
+  every vertex a factor n(x) in [``rr_min``, ``split_max``], learned per region from the earlier
+  passes of the same render, decides how many copies continue the path (n < 1: roulette with
+  survival n; n > 1: floor(n) or ceil(n) copies, each weighted 1/n).  Split paths become new
+  lanes of a wavefront (:mod:`integrators.sampling.splitting`), at most ``max_lanes`` alive at
+  once; ``render`` is then this integrator's own (JIT variants only), the learned state is kept
+  per scene across passes, and ``stats`` counts the rays it traced.  ``split`` must be 1 then.
+
 With ``heuristic=power, light_selection=uniform, rr=throughput, light_samples=1, split=1`` this is
 the estimator of Mitsuba's built-in ``path`` (tested statistically on the Cornell box).
 """
@@ -28,10 +36,10 @@ import dataclasses
 import drjit as dr
 import mitsuba as mi
 
-from ..common import depth_limit
-from ..params import MAX_COUNT, Param
+from ..common import depth_limit, is_jit
+from ..params import MAX_COUNT, Param, ParameterError
 from ..registry import plugin
-from ..sampling import light_selection, mis, roulette
+from ..sampling import light_selection, mis, roulette, splitting
 from ..sampling.vertex import VertexEstimator
 from .base import HIDE_EMITTERS, MAX_DEPTH, IntegratorTemplate
 
@@ -41,7 +49,19 @@ class NEEPath(IntegratorTemplate):
     """Path tracing with next-event estimation, MIS, light selection, Russian roulette, splitting."""
 
     PARAMS = (
-        MAX_DEPTH, *roulette.RR_PARAMS,
+        MAX_DEPTH, roulette.RR_PARAMS[0],
+        dataclasses.replace(roulette.RR_PARAMS[1], choices=(*roulette.RR_MODES, "adaptive"),
+                            doc="Russian roulette: none, fixed termination probability, from the "
+                                "throughput, or adaptive (EARS: roulette and splitting at every "
+                                "vertex, learned per region)."),
+        *roulette.RR_PARAMS[2:],
+        Param("rr_min", "float", 0.05, min=0.001, max=1.0,
+              doc="rr=adaptive: smallest survival probability of a vertex."),
+        Param("split_max", "int", 8, min=1, max=64,
+              doc="rr=adaptive: largest number of copies a vertex splits into."),
+        Param("max_lanes", "int", 1 << 20, min=1 << 10, max=1 << 26,
+              doc="rr=adaptive: paths alive at once (bounds memory; split factors are scaled "
+                  "down where a bounce would pass it)."),
         dataclasses.replace(mis.PARAMS[0], default="power"), *mis.PARAMS[1:],
         light_selection.PARAM,
         Param("light_samples", "int", 1, min=0, max=MAX_COUNT, doc="Shadow rays per vertex (NEE splitting)."),
@@ -52,12 +72,57 @@ class NEEPath(IntegratorTemplate):
     def setup(self):
         self.heur = mis.Heuristic.from_params(self.params)
         self.lights = light_selection.SelectionCache(self.light_selection)
+        self.adaptive = self.rr == "adaptive"
+        rr = dict(self.params, rr="none") if self.adaptive else self.params
         self.vertex = VertexEstimator(self.heur, self.light_samples, 1,
-                                      roulette.Roulette.from_params(self.params))
+                                      roulette.Roulette.from_params(rr))
         self.paths_per_sample = self.split
+        self.ears = None
+        #: tests: a rule (sampler, active) -> n replacing the learned n at every vertex
+        #: (:func:`~integrators.sampling.splitting.random_factors`), None: learned
+        self.forced_factor = None
+        #: what the last rr=adaptive render traced (rays, camera samples, lanes)
+        self.stats = {}
+        if self.adaptive:
+            if self.split != 1:
+                raise ParameterError(f"nee_path: parameter 'split' = {self.split!r} is invalid "
+                                     "with rr=adaptive; allowed: 1 (rr=adaptive splits at every "
+                                     "vertex by itself)")
+            if not is_jit():
+                raise ParameterError(f"nee_path: rr = 'adaptive' needs a JIT variant (llvm_*, "
+                                     f"cuda_*), the active variant is {mi.variant()}: its path "
+                                     "replication is a wavefront over Dr.Jit arrays")
+
+    def scene_warnings(self, scene):
+        if self.adaptive:    # a new scene: learn from scratch
+            self.ears = splitting.EARS(scene, self.rr_min, self.split_max, self.rr_depth)
+        return []
+
+    def render(self, scene, sensor=0, seed=0, spp=0, develop=True, evaluate=True):
+        """Mitsuba's render; with rr=adaptive the wavefront of
+        :mod:`integrators.sampling.splitting` (path replication), which then learns from the
+        pass for the next one."""
+        if not self.adaptive:
+            return self._base.render(self, scene, sensor, seed, spp, develop, evaluate)
+        self.prepare(scene)
+        if isinstance(sensor, int):
+            sensor = scene.sensors()[sensor]
+        spp = int(spp) if spp else int(sensor.sampler().sample_count())
+        film = sensor.film()
+        film.prepare([])
+        self.ears.forced = self.forced_factor
+        wave = splitting.Wavefront(self, self.ears, self.max_lanes)
+        block = wave.render(scene, sensor, int(seed), spp)
+        if self.ears.learning:
+            self.ears.learn(spp)
+        self.stats = wave.stats
+        film.put_block(block)
+        return film.develop() if develop else block.tensor()
 
     @dr.syntax
     def sample(self, scene, sampler, ray, medium=None, active=True):
+        """One camera sample (rr=adaptive renders through :meth:`render` instead; called
+        directly, it uses no roulette)."""
         active = mi.Bool(active)
         ray = mi.Ray3f(ray)
         sel = self.prepare(scene)

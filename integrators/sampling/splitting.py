@@ -1,0 +1,420 @@
+r"""Efficiency-aware Russian roulette and splitting (EARS) with real path replication.
+
+**The decision.**  At every vertex x of a path, after the emission found there is counted, the
+light *reflected* at x, L_r(x), is estimated by n(x) independent copies of the rest of the path
+(a BSDF sample, its light sample, and everything behind it), each weighted 1/n(x).  n < 1 is
+Russian roulette (one copy with probability n), n > 1 is splitting into floor(n) or ceil(n)
+copies by stochastic rounding (floor(n + u), u uniform), so the expected number of copies is n
+and the estimate is unbiased for *any* n > 0 chosen before the rounding (tested with random n
+in [0.1, 8] at every vertex).
+
+The efficiency-optimal n (Rath, Grittmann, Herholz, Weier, Slusallek 2022, "EARS:
+Efficiency-Aware Russian Roulette and Splitting"; Vorba & Krivanek 2016, ADRRS): the work
+minimises (sum over pixels of the relative variance) x (total cost).  One copy of the subpath
+from x adds w^2 a(x) / n to the relative variance of its pixel, w = lum(beta)/I_p the path's
+throughput relative to the pixel's value I_p, and n c(x) to the cost, c(x) the cost of one copy.
+Setting the derivative of V C to zero gives
+
+    n(x) = w sqrt(a(x) C / (V c(x)))
+
+with V the image's relative variance per camera sample (mean over pixels of Var_p / I_p^2), C
+its cost per camera sample, a(x) the second moment E[L_r^2] where n < 1 (roulette pays the
+whole second moment) and the variance Var[L_r] where n > 1 (splitting averages only the
+variance).  n is clamped to [``rr_min``, ``split_max``].
+
+**What is learned, and where.**  Per region of a :class:`~integrators.sampling.learning.
+RegionGrid` (position and normal octant): sums of L_r, L_r^2, the cost of a copy and the count
+of copies, accumulated from the vertices of the first ``LEARN_DEPTH`` bounces.  Every copy has
+a *record*; every contribution a lane adds to its camera sample is also added (its luminance,
+and the rays it cost) to the records of all its ancestors, so when the camera samples of a batch
+are finished, each record holds its copy's estimate beta_copy L_r and the copy's cost.  Per
+pixel: the running mean of the pixel estimate (blurred 3x3, the I_p of the rule) and, from the
+last pass, its second moment and cost.  Between passes (:meth:`EARS.learn`) each region gets
+two factors sqrt(M C / (V c)) and sqrt(Var C / (V c)); statistics then decay by ``DECAY``
+so that what is learned follows the changing policy (the cost and the variance behind a vertex
+depend on the decisions made behind it).  A region needs ``MIN_VISITS`` copies before its
+factors are used; until then (and in the first pass) a vertex uses the classic throughput rule
+(n = 1 before ``rr_depth``, then min(max(beta) eta^2, 0.95)).  The learned state lives on the
+integrator per scene, across the passes of ``render --spp`` or ``--time``.
+
+**Path replication (the wavefront).**  Camera samples are processed in batches.  Per bounce one
+kernel runs over the live lanes: the vertex estimate (:meth:`VertexEstimator.direct`: light
+sample with MIS, BSDF sample), the continuation ray, the MIS-weighted emission it finds
+(:meth:`VertexEstimator.emission`), all scattered (``dr.scatter_reduce``) to the lane's camera
+sample, then n at the new vertex and its rounding.  Then the next wavefront is built: lanes with
+zero copies are dropped (``dr.compress``), lanes with k copies appear k times (an exclusive
+prefix sum of the counts gives each parent's first slot; a scatter of marks and an inclusive
+prefix sum give every slot its parent), and every state array is gathered.  Each lane carries
+its camera sample's index; when a batch has no live lane left, its camera samples are splatted
+into the film (Mitsuba's ``ImageBlock``, with the film's reconstruction filter).
+
+**Memory.**  At most ``max_lanes`` lanes are alive: a batch starts with ``max_lanes /
+split_max`` camera samples (at least one lane each), and where the expected number of copies
+of a bounce would pass the cap, every n of that bounce is scaled by s = (cap - A) / sum n (A the
+live lanes), computed before the rounding from the n alone (so still unbiased: each copy's
+weight is 1/(s n)), which bounds floor(s n + u) summed over the lanes by s sum n + A <= cap.
+Memory is then independent of the samples per pixel.
+
+**Cost.**  ``stats`` counts what was traced: camera rays, continuation rays, shadow rays, and
+the camera samples, so comparisons can be made per ray as well as per second.
+"""
+from __future__ import annotations
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+from ..common import depth_limit, lnot, luminance, safe_div
+from .learning import RegionGrid
+
+#: bounces whose vertices keep records (statistics of L_r and cost per region)
+LEARN_DEPTH = 6
+#: copies a region needs before its learned factors replace the throughput rule
+MIN_VISITS = 32
+#: weight of older statistics after each pass (the policy behind a vertex changes)
+DECAY = 0.5
+#: cost of a shadow ray relative to a continuation (closest-hit) ray and its vertex
+SHADOW_COST = 0.5
+#: the throughput rule's survival cap (Mitsuba's path, pbrt)
+THROUGHPUT_CAP = 0.95
+#: atomic scatter-adds (the default may replicate the target per thread, with its size baked
+#: into the kernel: a recompilation whenever a wavefront's width changes)
+DIRECT = dr.ReduceMode.Direct
+#: the pixel value I_p is floored at this fraction of the image's mean (dark pixels)
+PIXEL_FLOOR = 0.05
+
+
+def seed_mix(*xs: int) -> int:
+    """A 32-bit seed from integers (a multiplicative hash; distinct for distinct tuples in
+    practice, and decorrelated by the sampler's own seeding)."""
+    h = 0x811C9DC5
+    for x in xs:
+        h ^= int(x) & 0xFFFFFFFF
+        h = (h * 0x01000193) & 0xFFFFFFFF
+        h ^= h >> 15
+        h = (h * 0x2C1B3C6D) & 0xFFFFFFFF
+        h ^= h >> 12
+    return h
+
+
+def _blur3(img: np.ndarray) -> np.ndarray:
+    """3x3 box filter with edge clamping (the pixel value I_p of the rule)."""
+    p = np.pad(img, 1, mode="edge")
+    h, w = img.shape
+    return sum(p[i:i + h, j:j + w] for i in range(3) for j in range(3)) / 9.0
+
+
+class EARS:
+    """The learned state of one scene: per-region statistics and factors, per-pixel values.
+
+    ``rr_min``, ``split_max``: the clamp of n; ``rr_depth``: the throughput rule's first depth
+    (used where nothing is learned).  ``forced``: a function (sampler, active) -> n that
+    replaces the learned n at every vertex (tests: random or maximal factors)."""
+
+    def __init__(self, scene, rr_min: float, split_max: int, rr_depth: int):
+        self.grid = RegionGrid(scene, stats=4)        # sum L_r^2, sum L_r, copies, sum cost
+        self.rr_min, self.split_max, self.rr_depth = float(rr_min), int(split_max), int(rr_depth)
+        self.f_var = mi.Float(np.full(self.grid.size, -1.0, np.float32))
+        self.shape = None
+        self.passes = 0
+        self.learned = False
+        self.forced = None
+        #: set False to freeze what was learned
+        self.learning = True
+
+    # ---- per-pixel state -----------------------------------------------------------------
+    def film(self, shape):
+        """Per-pixel state for a film of ``shape`` (h, w) (reset when the film changes)."""
+        if self.shape != tuple(shape):
+            self.shape = tuple(shape)
+            n = shape[0] * shape[1]
+            self.pix_s1 = np.zeros(n)
+            self.pix_n = np.zeros(n)
+            self.inv_pixel = mi.Float(np.zeros(n, np.float32))
+            self.learned = False
+        self.pass_s1 = dr.zeros(mi.Float, self.shape[0] * self.shape[1])
+        self.pass_s2 = dr.zeros(mi.Float, self.shape[0] * self.shape[1])
+        self.pass_cost = dr.zeros(mi.Float, 1)
+
+    # ---- in the kernel -------------------------------------------------------------------
+    def factor(self, si, beta, eta, depth, pixel, sampler, active):
+        """n(x) at the vertex ``si`` reached with throughput ``beta`` (before clamping to the
+        lane cap), and its cell.  Zero where ``active`` is false."""
+        cell = self.grid.cell_of(si)
+        if self.forced is not None:
+            n = dr.clip(self.forced(sampler, active), self.rr_min, self.split_max)
+        else:
+            f_m = self.grid.lookup(cell, active)
+            f_v = dr.gather(mi.Float, self.f_var, cell, active)
+            w = luminance(beta) * dr.gather(mi.Float, self.inv_pixel, pixel, active)
+            n_m = w * f_m
+            n = dr.select(n_m < 1.0, n_m, dr.maximum(w * f_v, 1.0))
+            beta_max = dr.max(mi.unpolarized_spectrum(beta), axis=0)
+            classic = dr.select(depth >= self.rr_depth,
+                                dr.minimum(beta_max * dr.square(eta), THROUGHPUT_CAP), 1.0)
+            n = dr.select(f_m >= 0, n, classic)
+            n = dr.clip(n, self.rr_min, self.split_max)
+        beta_nz = dr.any(mi.unpolarized_spectrum(beta) != 0)
+        return dr.select(active & beta_nz, n, 0.0), cell
+
+    # ---- between passes ------------------------------------------------------------------
+    def learn(self, spp: int):
+        """Factors for the next pass from the statistics so far (see the module docstring)."""
+        self.passes += 1
+        s1 = np.array(self.pass_s1, np.float64)
+        s2 = np.array(self.pass_s2, np.float64)
+        cost = float(self.pass_cost[0]) / max(s1.size * spp, 1)
+        self.pix_s1 += s1
+        self.pix_n += spp
+        if self.forced is not None or not self.learning:
+            return
+        mean = self.pix_s1 / np.maximum(self.pix_n, 1)
+        img = _blur3(mean.reshape(self.shape))
+        floor = PIXEL_FLOOR * max(float(img.mean()), 0.0) + 1e-12
+        ip = np.maximum(img.ravel(), floor)
+        var = np.maximum(s2 / spp - mean ** 2, 0.0)
+        v_rel = float(np.mean(var / ip ** 2))
+        st = self.grid.statistics()
+        cnt = st[:, 2]
+        ok = (cnt >= MIN_VISITS) & (v_rel > 0) & (cost > 0)
+        c = np.where(ok, st[:, 3] / np.maximum(cnt, 1e-30), 1.0)
+        m2 = np.where(ok, st[:, 0] / np.maximum(cnt, 1e-30), 0.0)
+        mu = np.where(ok, st[:, 1] / np.maximum(cnt, 1e-30), 0.0)
+        v = np.maximum(m2 - mu ** 2, 0.0)
+        k = cost / v_rel if v_rel > 0 else 0.0
+        c = np.maximum(c, 1e-6)
+        f_m = np.where(ok, np.sqrt(m2 * k / c), -1.0)
+        f_v = np.where(ok, np.sqrt(v * k / c), -1.0)
+        self.grid.set_table(f_m)
+        self.f_var = mi.Float(f_v.astype(np.float32))
+        self.inv_pixel = mi.Float((1.0 / ip).astype(np.float32))
+        self.learned = bool(ok.any())
+        self.grid.stats = self.grid.stats * DECAY
+        self.v_rel, self.cost = v_rel, cost
+
+
+def random_factors(lo: float, hi: float):
+    """A ``forced`` rule for tests: n uniform in [lo, hi] at every vertex, independently."""
+    def rule(sampler, active):
+        return lo + (hi - lo) * sampler.next_1d(active)
+    return rule
+
+
+def fixed_factor(n: float):
+    """A ``forced`` rule for tests: the same n at every vertex (e.g. ``split_max``)."""
+    def rule(sampler, active):
+        return dr.full(mi.Float, n, dr.width(active))
+    return rule
+
+
+class Wavefront:
+    """One pass of path tracing with EARS path replication, for the integrator ``integ``
+    (``nee_path``: its ``vertex`` estimator, ``camera_hit``, ``max_depth``)."""
+
+    def __init__(self, integ, ears: EARS, max_lanes: int):
+        self.integ, self.ears, self.max_lanes = integ, ears, int(max_lanes)
+        self.stats = dict(camera_rays=0, continuation_rays=0, shadow_rays=0, camera_samples=0,
+                          max_lanes=0, bounces=0, batches=0)
+
+    # ---- camera samples ----------------------------------------------------------------------
+    @staticmethod
+    def camera_rays(sensor, sampler, idx, spp: int):
+        """Camera rays of the samples ``idx`` (sample j of pixel j // spp), as Mitsuba's
+        ``sample_rays``: (ray, weight, splatting position, pixel index)."""
+        film = sensor.film()
+        size = film.crop_size()
+        border = film.rfilter().border_size()
+        if film.sample_border():
+            size += 2 * border
+        pixel = idx // dr.opaque(mi.UInt32, spp)
+        pos = mi.Vector2i()
+        pos.y = mi.Int32(pixel // int(size[0]))
+        pos.x = mi.Int32(pixel) - pos.y * int(size[0])
+        if film.sample_border():
+            pos -= border
+        pos += mi.Vector2i(film.crop_offset())
+        pos_f = mi.Vector2f(pos) + sampler.next_2d()
+        scale = dr.rcp(mi.ScalarVector2f(film.crop_size()))
+        offset = -mi.ScalarVector2f(film.crop_offset()) * scale
+        aperture = sampler.next_2d() if sensor.needs_aperture_sample() else mi.Vector2f(0.0)
+        time = sensor.shutter_open()
+        if sensor.shutter_open_time() > 0:
+            time += sampler.next_1d() * sensor.shutter_open_time()
+        wav = sampler.next_1d() if mi.is_spectral else mi.Float(0.0)
+        ray, weight = sensor.sample_ray(time, wav, dr.fma(pos_f, scale, offset), aperture)
+        n = dr.width(idx)
+        if dr.width(ray) != n:      # a sensor whose ray ignores the position (radiancemeter)
+            ray = dr.gather(mi.Ray3f, ray, dr.zeros(mi.UInt32, n))
+        if dr.width(weight) != n:
+            weight = dr.gather(mi.Spectrum, weight, dr.zeros(mi.UInt32, n))
+        splat = mi.Vector2f(pos) if film.rfilter().is_box_filter() else pos_f
+        return ray, weight, splat, pixel
+
+    # ---- the pass ------------------------------------------------------------------------
+    def render(self, scene, sensor, seed: int, spp: int):
+        """Render ``spp`` samples per pixel; returns the film's ImageBlock (filled)."""
+        from mitsuba.ad.integrators.common import ADIntegrator
+        film = sensor.film()
+        size = film.crop_size()
+        if film.sample_border():
+            size += 2 * film.rfilter().border_size()
+        w, h = int(size[0]), int(size[1])
+        self.ears.film((h, w))
+        total = w * h * spp
+        batch = max(1, self.max_lanes // 2)
+        block = film.create_block()
+        sampler = mi.load_dict({"type": "independent"})
+        for b0 in range(0, total, batch):
+            n = min(batch, total - b0)
+            sampler.seed(dr.opaque(mi.UInt32, seed_mix(seed, b0, 0xCA)), n)
+            idx = dr.arange(mi.UInt32, b0, b0 + n)
+            ray, weight, pos, pixel = self.camera_rays(sensor, sampler, idx, spp)
+            L, valid = self.batch(scene, sampler, ray, pixel, seed, b0)
+            ADIntegrator._splat_to_block(block, film, pos, value=L * weight, weight=1.0,
+                                         alpha=dr.select(valid, mi.Float(1), mi.Float(0)),
+                                         aovs=[], wavelengths=ray.wavelengths)
+            lum = luminance(L * weight)
+            dr.scatter_reduce(dr.ReduceOp.Add, self.ears.pass_s1, lum, pixel, mode=DIRECT)
+            dr.scatter_reduce(dr.ReduceOp.Add, self.ears.pass_s2, lum * lum, pixel, mode=DIRECT)
+            dr.eval(block.tensor(), self.ears.pass_s1, self.ears.pass_s2)
+            self.stats["batches"] += 1
+            self.stats["camera_samples"] += n
+        return block
+
+    def batch(self, scene, sampler, ray, pixel, seed: int, b0: int):
+        """Every path of one batch of camera samples: (L per camera sample, valid)."""
+        integ, ears = self.integ, self.ears
+        sel = integ.prepare(scene)
+        n_cam = dr.width(ray)
+        limit = depth_limit(integ.max_depth)
+        learn = ears.learning and ears.forced is None
+        self.L = dr.zeros(mi.Spectrum, n_cam)
+        cost = dr.zeros(mi.Float, n_cam)
+        si, L0 = integ.camera_hit(scene, ray, True)
+        valid = si.is_valid()
+        self.L += L0
+        alive = valid & (1 < limit)
+        sid = dr.arange(mi.UInt32, n_cam)
+        beta = mi.Spectrum(1.0)
+        eta = mi.Float(1.0)
+        depth = mi.UInt32(0)
+        u = sampler.next_1d()
+        n, cell = ears.factor(si, beta, eta, depth, pixel, sampler, alive)
+        dr.eval(self.L, valid, n, u, cell, si)
+        self.stats["camera_rays"] += n_cam
+        recs = []
+        self._next = None
+        self._k_sum = dr.zeros(mi.Float, 1)
+        state = self.replicate(dict(si=si, beta=beta, eta=eta, depth=depth, sid=sid,
+                                    pixel=pixel, hist=[]), n, u, cell, alive, recs, learn)
+        bounce = 0
+        while state is not None:
+            bounce += 1
+            sampler.seed(dr.opaque(mi.UInt32, seed_mix(seed, b0, bounce)), state["width"])
+            si, beta, eta, depth, alive, c, k = self.vertex(scene, sel, sampler, state, limit)
+            hist = state["hist"]
+            dr.scatter_reduce(dr.ReduceOp.Add, self.L, c, state["sid"], mode=DIRECT)
+            dr.scatter_reduce(dr.ReduceOp.Add, cost, k, state["sid"], mode=DIRECT)
+            if learn:
+                lc = luminance(c)
+                for r, hh in zip(recs, hist):
+                    dr.scatter_reduce(dr.ReduceOp.Add, r["S"], lc, hh, mode=DIRECT)
+                    dr.scatter_reduce(dr.ReduceOp.Add, r["R"], k, hh, mode=DIRECT)
+            u = sampler.next_1d()
+            n, cell = ears.factor(si, beta, eta, depth, state["pixel"], sampler, alive)
+            dr.scatter_reduce(dr.ReduceOp.Add, self._k_sum, (k - 1.0) / SHADOW_COST,
+                              mi.UInt32(0), mode=dr.ReduceMode.Local)
+            # one kernel: what the next wavefront gathers, and the scattered contributions
+            dr.eval(self._next, beta, eta, depth, alive, n, u, cell, self.L, cost, self._k_sum,
+                    *[(r["S"], r["R"]) for r in recs])
+            self.stats["continuation_rays"] += state["width"]
+            state = self.replicate(dict(si=si, beta=beta, eta=eta, depth=depth,
+                                        sid=state["sid"], pixel=state["pixel"], hist=hist),
+                                   n, u, cell, alive, recs, learn and bounce < LEARN_DEPTH)
+        self.stats["bounces"] = max(self.stats["bounces"], bounce)
+        self.stats["shadow_rays"] += int(round(float(self._k_sum[0])))
+        if learn:
+            for r in recs:
+                L_r = safe_div(r["S"], r["blum"])
+                ears.grid.add(r["cell"], [L_r * L_r, L_r, mi.Float(1.0), r["R"]], r["blum"] > 0)
+        dr.scatter_reduce(dr.ReduceOp.Add, ears.pass_cost, 1.0 + cost, mi.UInt32(0),
+                          mode=dr.ReduceMode.Local)
+        dr.eval(ears.grid.stats, ears.pass_cost)
+        return self.L, valid
+
+    def vertex(self, scene, sel, sampler, st, limit):
+        """The kernel of one bounce over the live lanes: the vertex estimate and the emission
+        its continuation finds (the contribution c), the next vertex, and the cost k."""
+        integ = self.integ
+        vx = integ.vertex
+        ctx = mi.BSDFContext()
+        active = mi.Bool(True)
+        if "si" in st:
+            si = st["si"]
+        else:
+            si = st["pi"].compute_surface_interaction(st["ray"], mi.RayFlags.All, active)
+        bsdf = si.bsdf()
+        d = vx.direct(scene, sel, sampler, ctx, si, bsdf, active)
+        beta = st["beta"]
+        c = beta * d.L
+        smooth = mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
+        k = 1.0 + dr.select(smooth & (sel.count > 0), SHADOW_COST, 0.0)
+        beta = beta * d.weight
+        eta = st["eta"] * d.bs.eta
+        depth = st["depth"] + 1
+        act = (d.bs.pdf > 0) & dr.any(mi.unpolarized_spectrum(beta) != 0)
+        ray = si.spawn_ray(si.to_world(d.bs.wo))
+        pi = scene.ray_intersect_preliminary(ray, coherent=False, active=act)
+        si_n = pi.compute_surface_interaction(ray, mi.RayFlags.All, act)
+        delta = mi.has_flag(d.bs.sampled_type, mi.BSDFFlags.Delta)
+        L_w = vx.emission(scene, sel, si, si_n, [vx.n_b * d.bs.pdf], delta, act, d.norm)
+        c += dr.select(act, beta * L_w, 0.0)
+        alive = act & si_n.is_valid() & (depth + 1 < limit)
+        self._next = (ray, pi)
+        return si_n, beta, eta, depth, alive, c, k
+
+    def replicate(self, st, n, u, cell, alive, recs, record: bool):
+        """The next wavefront: each lane with floor(s n + u) copies, each weighted 1/(s n)
+        (s < 1 only where the lanes would pass the cap); None when no lane is left."""
+        width = dr.width(n)
+        n_sum = float(dr.sum(n)[0])
+        live = int(dr.count(alive)[0]) if dr.width(dr.count(alive)) else 0
+        s = 1.0
+        if n_sum + live > self.max_lanes:
+            s = max(self.max_lanes - live, 0) / n_sum
+        ns = n * dr.opaque(mi.Float, s)
+        counts = mi.UInt32(dr.floor(ns + u))
+        counts = dr.select(alive & (ns > 0), counts, 0)
+        parents = dr.compress(counts > 0)
+        if dr.width(parents) == 0:
+            return None
+        cnt = dr.gather(mi.UInt32, counts, parents)
+        first = dr.prefix_sum(cnt)                    # exclusive: each parent's first slot
+        total = int(dr.sum(cnt)[0])
+        mark = dr.zeros(mi.UInt32, total)
+        dr.scatter(mark, 1, first)
+        rank = dr.cumsum(mark) - 1                  # inclusive
+        idx = dr.gather(mi.UInt32, parents, rank)
+        dr.eval(idx)
+        self.stats["max_lanes"] = max(self.stats["max_lanes"], total)
+        beta = dr.gather(mi.Spectrum, st["beta"] * safe_div(1.0, ns), idx)
+        out = dict(width=total, beta=beta,
+                   eta=dr.gather(mi.Float, st["eta"], idx),
+                   depth=dr.gather(mi.UInt32, st["depth"], idx),
+                   sid=dr.gather(mi.UInt32, st["sid"], idx),
+                   pixel=dr.gather(mi.UInt32, st["pixel"], idx),
+                   hist=[dr.gather(mi.UInt32, hh, idx) for hh in st["hist"]])
+        if self._next is not None:               # after a bounce: the ray and its hit
+            ray, pi = self._next
+            out["ray"] = dr.gather(mi.Ray3f, ray, idx)
+            out["pi"] = dr.gather(mi.PreliminaryIntersection3f, pi, idx)
+        else:                                    # the first hit (camera_hit)
+            out["si"] = dr.gather(mi.SurfaceInteraction3f, st["si"], idx)
+        self._next = None
+        if record:
+            recs.append(dict(S=dr.zeros(mi.Float, total), R=dr.zeros(mi.Float, total),
+                             cell=dr.gather(mi.UInt32, cell, idx),
+                             blum=luminance(beta)))
+            out["hist"].append(dr.arange(mi.UInt32, total))
+        # the gathers run inside the next bounce's kernel (nothing is evaluated here but idx)
+        return out
