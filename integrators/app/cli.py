@@ -2,12 +2,16 @@
 
     render SCENE.xml [-D name=value ...] [--spp N | --time S] [--seed S] [-o OUT.exr]
                      [--variant V] [--checkpoint SECONDS] [--quiet]
+                     [--workers N | --scheduler ADDRESS]
         Renders with the scene's own integrator, progressively in passes (see
         integrators.app.progressive), and writes OUT.exr (RGB + variance layer, the run record
         in the header: integrators.app.record) plus OUT.png (sRGB preview), replaced together.
         -D sets the XML ``$name`` defaults, as Mitsuba's own command line does.  Ctrl-C /
         SIGTERM after the first pass finish the pass in flight, write what was accumulated and
-        exit with 130 / 143 (before it: exit at once, nothing written).
+        exit with 130 / 143 (before it: exit at once, nothing written).  --workers N renders
+        on a Dask LocalCluster of N processes on this machine, --scheduler on an existing Dask
+        cluster (integrators.app.distributed: tasks of disjoint seed ranges, merged exactly);
+        without either, the render runs in this process.
     merge A.exr B.exr ... -o OUT.exr
         Sample-weighted mean of independent runs of the same scene and integrator; refuses
         runs whose records differ (scene content, integrator, parameters, variant, defines) or
@@ -38,6 +42,7 @@ from . import interrupt
 
 MAX_SEED = (1 << 32) - 1      # = progressive.MAX_SEED (not imported: that pulls in Mitsuba)
 MAX_SPP = (1 << 32) - 1       # = progressive.MAX_SPP
+MAX_WORKERS = 4096            # worker processes of --workers on one machine
 
 
 class UserError(Exception):
@@ -106,6 +111,10 @@ def _parser() -> argparse.ArgumentParser:
                    help="sampler seed of the first pass (one seed per pass)")
     r.add_argument("-o", "--output", help="output EXR (default: SCENE name in the current dir)")
     r.add_argument("--variant", help="Mitsuba variant (default: llvm_ad_rgb)")
+    r.add_argument("--workers", type=_int_arg("--workers", 1, MAX_WORKERS), metavar="N",
+                   help="render on a Dask LocalCluster of N worker processes on this machine")
+    r.add_argument("--scheduler", metavar="ADDRESS",
+                   help="render on the Dask cluster of this scheduler (e.g. tcp://HOST:8786)")
     r.add_argument("--debug", action="store_true", help="show Python tracebacks")
     m = sub.add_parser("merge", help="merge independent renders of one scene", allow_abbrev=False)
     m.add_argument("inputs", nargs="+", help="EXR files written by render")
@@ -265,6 +274,19 @@ def cmd_render(args, ints) -> int:
     out = Path(args.output) if args.output else Path(scene_path.stem + ".exr")
     _check_output(out)
     defines = _defines(args.defines)
+    distributed = args.workers is not None or args.scheduler is not None
+    if args.workers is not None and args.scheduler is not None:
+        raise UserError("--workers starts a cluster on this machine and --scheduler uses an "
+                        "existing one: give one of them")
+    if distributed and args.checkpoint:
+        raise UserError("--checkpoint cannot be combined with --workers or --scheduler (the "
+                        "tasks return their sums when they finish)")
+    if args.scheduler is not None:
+        from .distributed import ClusterError, check_scheduler_address
+        try:
+            check_scheduler_address(args.scheduler)
+        except ClusterError as e:
+            raise UserError(str(e)) from None
     interrupt.test_pause("load")
     try:
         scene = mi.load_file(str(scene_path), **defines)
@@ -282,7 +304,12 @@ def cmd_render(args, ints) -> int:
         raise UserError(f"{scene_path}: {_clean(e)}") from None
     from .record import RunRecord
     record = RunRecord.for_scene(scene_path, scene.integrator(), mi.variant(), defines)
-    acc = _run(scene, args, out, record, ints, scene_path)
+    runner = _run_distributed if distributed else _run
+    acc = runner(scene, args, out, record, ints, scene_path)
+    if acc is None:
+        print(f"nothing rendered: stopped by {ints.received[0]} before a task finished a pass; "
+              f"{out} not written", file=sys.stderr)
+        return ints.status or 1
     ints.finish()
     with ints.deferred():
         interrupt.test_pause("write")
@@ -290,9 +317,13 @@ def cmd_render(args, ints) -> int:
     rate = acc.spp * acc.s.shape[0] * acc.s.shape[1] / max(acc.seconds, 1e-9)
     stopped = ints.received[0] if ints.received else None
     note = f"; stopped by {stopped}" if stopped else ""
+    where = ""
+    if distributed:
+        where = (f", {args.workers} Dask workers" if args.workers is not None
+                 else f", Dask cluster {args.scheduler}")
     print(f"wrote {out} and {out.with_suffix('.png')} ({acc.s.shape[1]}x{acc.s.shape[0]}, "
           f"{acc.spp} spp in {acc.passes} passes, {acc.seconds:.2f} s, "
-          f"{rate / 1e6:.2f} M samples/s, {mi.variant()}{note})")
+          f"{rate / 1e6:.2f} M samples/s, {mi.variant()}{where}{note})")
     if acc.stopped == "seeds":
         print(f"warning: stopped at the last seed {progressive.MAX_SEED} (seeds are 32-bit); "
               "start from a lower --seed for longer renders", file=sys.stderr)
@@ -364,14 +395,81 @@ def _run(scene, args, out, record, ints, scene_path):
             bar.close()
 
 
-def _progress_bar(args):
+def _run_distributed(scene, args, out, record, ints, scene_path):
+    """The render on a Dask cluster (integrators.app.distributed) with one progress bar over
+    it.  Signals as in-process: the first (once a task has finished a pass) stops every task
+    after its pass in flight and writes the merge; a second abandons the tasks in flight and
+    writes the tasks finished before it."""
+    from . import distributed, progressive
+    stop = progressive.Stop()
+    stats: dict = {}
+    bar = None
+
+    class Keeper:
+        def stop(self, name):
+            stop.set(name)
+            print(f"{name}: stopping the tasks after their pass in flight, then writing {out} "
+                  "(send again to abandon them)", file=sys.stderr, flush=True)
+
+        def abandon(self, name):
+            with contextlib.suppress(Exception):
+                cluster.client.cancel(stats.get("futures", []))
+            try:
+                acc = distributed.merge_results(list(stats.get("results", [])), record)
+            except Exception as e:     # noqa: BLE001 - the process ends right after
+                return f"{name} again: abandoned the tasks in flight; error: {_clean(e)}"
+            if acc is None:
+                return (f"{name} again: abandoned the tasks in flight; none had finished, "
+                        f"{out} not written")
+            try:
+                _write(out, acc)
+            except UserError as e:
+                return f"{name} again: abandoned the tasks in flight; error: {e}"
+            return (f"{name} again: abandoned the tasks in flight; wrote {out} with the "
+                    f"{acc.spp} spp of the {len(stats['results'])} tasks finished before it")
+
+    def on_progress(progress, elapsed):
+        if progress.passes and ints.keeper is None:
+            ints.keeper = Keeper()
+        if bar is not None:
+            w, h = scene_size
+            rate = progress.spp * w * h / max(elapsed, 1e-9) / 1e6
+            bar.set_postfix_str(f"{progress.spp} spp, {rate:.2f} M samples/s, "
+                                f"{cluster.slots} workers")
+            bar.update((progress.spp if args.time is None else min(elapsed, args.time))
+                       - bar.n)
+
+    scene_size = progressive.film_size(scene)
+    spp = args.spp
+    if spp is None and args.time is None:
+        spp = scene.sensors()[0].sampler().sample_count()
+    try:
+        cluster = distributed.Cluster(workers=args.workers, scheduler=args.scheduler)
+    except distributed.ClusterError as e:
+        raise UserError(str(e)) from None
+    try:
+        bar = _progress_bar(args, total=spp)
+        return distributed.render(cluster, scene_path, record, scene_size, spp=spp,
+                                  time_budget=args.time, seed=args.seed, stop=stop,
+                                  on_progress=on_progress, stats=stats)
+    except UserError:
+        raise
+    except Exception as e:
+        raise _render_failure(e, scene_path) from None
+    finally:
+        if bar is not None:
+            bar.close()
+        cluster.close()
+
+
+def _progress_bar(args, total=None):
     if args.quiet or not sys.stderr.isatty():
         return None
     from tqdm import tqdm
     if args.time is not None:
         return tqdm(total=args.time, unit="s", bar_format="{l_bar}{bar}| {n:.1f}/{total:.0f} s "
                     "[{elapsed}<{remaining}{postfix}]", file=sys.stderr)
-    return tqdm(total=args.spp, unit="spp", file=sys.stderr)
+    return tqdm(total=total or args.spp, unit="spp", file=sys.stderr)
 
 
 def cmd_merge(args, ints) -> int:
