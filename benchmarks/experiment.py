@@ -13,7 +13,8 @@ from pathlib import Path
 
 from . import plots, references, timing
 from .config import GROUPS, REFERENCE_SEED, REPO, SCENES, Settings, scene_file, scene_methods
-from .metrics import Flip, errors, relmse, relmse_self, signed_relative_error, srgb
+from .metrics import (Ciede2000, Flip, errors, relmse, relmse_self, signed_relative_error,
+                      srgb)
 
 
 class Worker:
@@ -46,6 +47,7 @@ class Worker:
         self.integ = {m.label: mi.load_dict(dict(m.integrator)) for m in self.methods}
         self.method = {m.label: m for m in self.methods}
         self.flip = Flip()
+        self.ciede = Ciede2000()
         self.seed = 10
         self.emitter_mask = self.emitter_pixels()
 
@@ -102,15 +104,15 @@ class Worker:
     def _render(self, spp):
         """render(label, seed) -> (image, seconds) at ``spp`` for :func:`timing.round_robin`.
 
-        A method that learns between passes (``mis3`` with ``selection=learned``) starts each
-        render from a fresh integrator and renders in passes (:func:`timing.learned_render`), so
-        its learning is in the measured time and nothing learned in one render helps another."""
+        A method that learns from its own samples (``mis3`` with ``selection=learned``: a render
+        call learns from its first share of samples, then renders the rest) forgets what it
+        learned before each render (``reset_learning``), so its learning is in the measured
+        time and nothing learned in one render helps another."""
         def render(label, seed):
-            m = self.method[label]
-            if m.integrator.get("selection") == "learned":
-                return timing.timed(timing.learned_render, self.scene,
-                                    self.mi.load_dict(dict(m.integrator)), spp, seed)
-            return timing.timed_render(self.scene, self.integ[label], spp, seed)
+            integ = self.integ[label]
+            if hasattr(integ, "reset_learning"):
+                integ.reset_learning()
+            return timing.timed_render(self.scene, integ, spp, seed)
         return render
 
     def _rgb(self, img):
@@ -141,14 +143,15 @@ class Worker:
         keep = ~self.emitter_mask
         t0 = timing.clock()
         for b in self.s.budgets:
-            per = {m.label: {"rmse": [], "relmse": [], "flip": [], "relmse_masked": []}
+            per = {m.label: {"rmse": [], "relmse": [], "flip": [], "de2000": [],
+                             "relmse_masked": []}
                    for m in self.methods}
 
             def on_render(label, rnd, warm, img, dt, b=b, per=per):
                 # every render counts for the errors (the warm-up too: it is a valid image)
                 img = self._rgb(img)
                 ref, _, _, ref_srgb = refs[group_of[label]]
-                e = errors(img, ref, ref_srgb, self.flip, keep)
+                e = errors(img, ref, ref_srgb, self.flip, keep, self.ciede)
                 for key, values in per[label].items():
                     if e[key] is not None:
                         values.append(e[key])
@@ -175,6 +178,7 @@ class Worker:
                     "rmse": float(np.mean(p["rmse"])) if p["rmse"] else None,
                     "relmse": float(np.mean(p["relmse"])) if p["relmse"] else None,
                     "flip": float(np.mean(p["flip"])) if p["flip"] else None,
+                    "de2000": float(np.mean(p["de2000"])) if p["de2000"] else None,
                 })
                 masked[m.label].append(float(np.mean(p["relmse_masked"]))
                                        if p["relmse_masked"] else None)
@@ -247,9 +251,10 @@ class Worker:
 
             timing.round_robin(self._render(spp), [m.label], rounds=1, warmup=1,
                                seed=self.next_seed, on_render=keep)
-            e = errors(shot["image"], ref, ref_srgb, self.flip)
+            e = errors(shot["image"], ref, ref_srgb, self.flip, ciede=self.ciede)
             out[m.label] = {"spp": spp, "time_s": shot["time_s"], "relmse": e["relmse"],
-                            "flip": e["flip"], "image": shot["image"]}
+                            "flip": e["flip"], "de2000": e["de2000"],
+                            "image": shot["image"]}
         return target, out
 
     # -----------------------------------------------------------------------------------------
@@ -279,6 +284,7 @@ class Worker:
                 eff[m.label] = {
                     "spp": last["spp"], "time_s": last["time_s"],
                     "relmse": last["relmse"], "flip": last["flip"],
+                    "de2000": last.get("de2000"),
                     "efficiency": inv(last["relmse"], last["time_s"]),
                     "samples_per_s": self.w * self.h * last["spp"] / last["time_s"],
                     "relmse_without_emitter_pixels": masked[m.label][-1],
@@ -342,5 +348,6 @@ class Worker:
             "lights": self.lights(),
             "relmse_without_emitter_pixels": masked,
             "flip_unavailable_reason": self.flip.reason,
+            "de2000_unavailable_reason": self.ciede.reason,
             "worker_seconds": timing.clock() - t_start,
         }

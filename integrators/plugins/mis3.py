@@ -88,18 +88,27 @@ from .base import HIDE_EMITTERS, MAX_DEPTH, IntegratorTemplate
 
 
 SELECTIONS = ("fixed", "adaptive", "learned")
-#: candidate light-sample probabilities of selection=learned (the smallest is the floor)
-LEARNED_P = (0.05, 0.1, 0.2, 0.35, 0.5, 0.7, 0.85, 1.0)
+#: candidate light-sample allocations of selection=learned: a probability of one light sample
+#: up to 1, an expected number of light samples above it (the smallest is the floor)
+LEARNED_P = (0.05, 0.1, 0.2, 0.35, 0.5, 0.7, 0.85, 1.0, 1.5, 2.0, 3.0, 4.0)
+ONE = LEARNED_P.index(1.0)
 #: cost of a light sample (shadow ray, light and BSDF evaluation) relative to a vertex without
 #: one (measured: nee_path 0.089 s against bsdf_path 0.06 s per pass on veach_mis)
 LIGHT_COST = 0.5
 #: visits a region needs before its learned probability replaces the adaptive one
 LEARN_MIN_VISITS = 64
+#: non-zero light samples or emission hits a region needs before it leaves p(3) = 1
+LEARN_MIN_HITS = 32
+#: a render call of selection=learned that is still learning first renders this share of its
+#: samples, learns from them, and renders the rest with what it learned
+LEARN_SHARE = 1 / 8
 #: fraction of vertices that record statistics
 LEARN_FRACTION = 0.125
 #: a learned p(3) below 1 must promise at least this factor less variance x cost than p(3) = 1
 #: (the estimates of small p(3) are heavy-tailed and read low more often than high)
 LEARN_MARGIN = 0.8
+#: learning stops once a pass changes the decisions of less than this fraction of the visits
+LEARN_SETTLED = 0.05
 
 
 def _prob(name, default, doc):
@@ -131,30 +140,69 @@ class MIS3(IntegratorTemplate):
         self.heur = mis.Heuristic.from_params(self.params)
         self.lights = light_selection.SelectionCache(self.light_selection)
         self.vertex = VertexEstimator(self.heur, 1, 1, roulette.Roulette.from_params(self.params))
+        self.vertex.allocates = self.params["selection"] == "learned"
         self.learned = self.params["selection"] == "learned"
         self.grid = None
         #: set False to freeze what was learned (the table then stays as it is)
         self.learning = True
+        #: true once a pass changed the decisions of less than LEARN_SETTLED of the visits:
+        #: later passes record nothing (no statistics in the kernel: the cost of learning ends)
+        self.settled = False
         self._depth = 0
 
     # ---- selection=learned: the light-sample probability per region ------------------------
     def scene_warnings(self, scene):
         if self.learned:   # a new scene: learn from scratch
-            self.grid = RegionGrid(scene, stats=len(LEARNED_P) + 2)
+            self.grid = RegionGrid(scene, stats=len(LEARNED_P) + 3)
+            self.settled = False
         return []
 
     def render(self, scene, sensor=0, seed=0, spp=0, develop=True, evaluate=True):
         """Mitsuba's render; with selection=learned, the pass's statistics then set the
-        light-sample probability of every region for the next pass."""
+        light-sample probability of every region for the next pass, and a render call that is
+        still learning splits itself in two: LEARN_SHARE of its samples first, learned from,
+        then the rest (the spp-weighted mean of two unbiased images; the second pass's seed is
+        the first's + 2^31), so a single call already profits from what it learns."""
+        if self.learned and develop and self._depth == 0:
+            self.prepare(scene)
+            if self.recording:
+                total = int(spp) if spp else self._sensor(scene, sensor).sampler().sample_count()
+                first = int(total * LEARN_SHARE)
+                if first >= 1 and total - first >= 1:
+                    img = self._pass(scene, sensor, seed, first, evaluate)
+                    rest = self._pass(scene, sensor, (int(seed) + 2 ** 31) % 2 ** 32,
+                                      total - first, evaluate)
+                    return img * (first / total) + rest * ((total - first) / total)
+        return self._pass(scene, sensor, seed, spp, evaluate, develop)
+
+    def reset_learning(self):
+        """Forget what was learned (the next render learns from scratch; compiled kernels are
+        kept): for experiments that time independent renders of one integrator."""
+        if self.grid is not None:
+            self.grid.reset()
+        self.settled = False
+
+    @staticmethod
+    def _sensor(scene, sensor):
+        return scene.sensors()[sensor] if isinstance(sensor, int) else sensor
+
+    def _pass(self, scene, sensor, seed, spp, evaluate=True, develop=True):
+        """One call of Mitsuba's render, then (while learning) learn from its statistics."""
         self._depth += 1
         try:
             img = self._base.render(self, scene, sensor, seed, spp, develop, evaluate)
         finally:
             self._depth -= 1
-        if self.learned and self.learning and self._depth == 0 and self.grid is not None:
+        if self.recording and self._depth == 0:
             dr.eval(img)
             self.learn()
         return img
+
+    @property
+    def recording(self) -> bool:
+        """Whether the next pass records statistics (read when the kernel is traced)."""
+        return bool(self.learned and self.learning and not self.settled and
+                    self.grid is not None)
 
     def learn(self):
         """Per region, the candidate p(3) that minimises (variance of the direct-light estimate)
@@ -162,7 +210,9 @@ class MIS3(IntegratorTemplate):
         st = self.grid.statistics()
         k = len(LEARNED_P)
         n = st[:, k + 1]
-        ok = n >= LEARN_MIN_VISITS
+        # a region leaves p(3) = 1 only on enough visits and enough non-zero samples: the
+        # second moments of small p are heavy-tailed and read low on a few samples
+        ok = (n >= LEARN_MIN_VISITS) & (st[:, k + 2] >= LEARN_MIN_HITS)
         nn = np.where(ok, n, 1.0)[:, None]
         second = st[:, :k] / nn
         mean = (st[:, k] / nn[:, 0])[:, None]
@@ -170,9 +220,17 @@ class MIS3(IntegratorTemplate):
         cost = 1.0 + LIGHT_COST * np.array(LEARNED_P)[None, :]
         j = var * cost
         arg = np.argmin(j, axis=1)
-        keep_one = j[np.arange(len(arg)), arg] > LEARN_MARGIN * j[:, -1]
+        keep_one = j[np.arange(len(arg)), arg] > LEARN_MARGIN * j[:, ONE]
         best = np.where(keep_one, 1.0, np.array(LEARNED_P, dtype=np.float32)[arg])
-        self.grid.set_table(np.where(ok, best, -1.0))
+        table = np.where(ok, best, -1.0)
+        # settled: the decisions that changed carry less than LEARN_SETTLED of the visits
+        def used(t):   # the p(3) a vertex uses (1 where nothing is learned yet)
+            return np.log(np.where(t > 0, t, 1.0))
+        changed = n[np.abs(used(table) - used(self.grid.table())) > 0.2].sum()
+        # (and most visits are in regions that have learned: else more passes are needed)
+        self.settled = bool(n.sum() > 0 and changed < LEARN_SETTLED * n.sum() and
+                            n[ok].sum() >= 0.5 * n.sum())
+        self.grid.set_table(table)
 
     # the learner interface of VertexEstimator.path
     def light_probability(self, si, sampler, active):
@@ -181,35 +239,41 @@ class MIS3(IntegratorTemplate):
         fraction LEARN_FRACTION of vertices that record statistics (the choice uses only ratios
         of the statistics, so a random subset serves as well at a fraction of the cost)."""
         cell = self.grid.cell_of(si)
-        record = active & (sampler.next_1d(active) < LEARN_FRACTION)
-        self.grid.add(cell, [mi.Float(0.0)] * (len(LEARNED_P) + 1) + [mi.Float(1.0)], record)
+        record = None
+        if self.recording:
+            record = active & (sampler.next_1d(active) < LEARN_FRACTION)
+            self.grid.add(cell, {len(LEARNED_P) + 1: mi.Float(1.0)}, record)
         table = self.grid.lookup(cell, active)
         return dr.select(table > 0, table, 1.0), (cell, record)
 
     def record_light(self, cell, beta, d, p3):
         """Statistics of a light sample (value: luminance of beta f L_e, per unit of the light
         pdf for a delta light)."""
-        if d.ls is None:
+        if d.ls is None or cell[1] is None:
             return
         ls, (cell, record) = d.ls, cell
         value = luminance(beta * d.f_l * ls.weight * dr.select(ls.ds.delta, 1.0, ls.ds.pdf))
-        self._learn(cell, value, ls.ds.pdf, p3, d.pdf_l, ls.ds.delta, ls.visible & record)
+        # only the first of n > 1 light samples records: it stands for all n (factor n)
+        self._learn(cell, value, ls.ds.pdf, p3, d.pdf_l, ls.ds.delta, ls.visible & record,
+                    dr.maximum(p3, 1.0))
 
     def record_hit(self, cell, beta_weight, L_e, pdf_l, pdf_b, p3, active):
         """Statistics of emission found by the BSDF sample (beta_weight: beta f cos / p_b)."""
         cell, record = cell
+        if record is None:
+            return
         value = luminance(beta_weight * pdf_b * L_e)
         self._learn(cell, value, pdf_l, p3, pdf_b, mi.Bool(False), active & record)
 
-    def _learn(self, cell, value, pdf_l, p3, q_b, delta, active):
+    def _learn(self, cell, value, pdf_l, p3, q_b, delta, active, count=1.0):
         # M(p) = int I^2 / (p p_l + q_b): each sample adds I^2 / ((p p_l + q_b) Q0), Q0 the
         # density it was drawn with (the balance combination of both techniques); for a
         # delta light, M(p) = A / p and a sample drawn with probability p3 adds I^2 / (p3 p)
         q0 = dr.select(delta, p3, p3 * pdf_l + q_b)
-        inv_q0 = safe_div(1.0, q0)
+        inv_q0 = safe_div(count, q0)
         vals = [value * value * inv_q0 * dr.select(delta, 1.0 / p, safe_div(1.0, p * pdf_l + q_b))
                 for p in LEARNED_P]
-        vals += [value * inv_q0, mi.Float(0.0)]
+        vals += [value * inv_q0, mi.Float(0.0), mi.Float(1.0)]   # mean, (visits), hits
         self.grid.add(cell, vals, active & (value > 0))
 
     def technique_probs(self, bsdf, si, has_lights: bool, active):

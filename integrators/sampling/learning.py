@@ -59,8 +59,10 @@ class RegionGrid:
         return float(self.decisions[int(cell)]) if active else self.default
 
     def add(self, cell, values, active):
-        """Add ``values`` (one Float per statistic) to the cell's statistics."""
-        for k, v in enumerate(values):
+        """Add ``values`` (one Float per statistic, or a dict {statistic index: Float} for a
+        few of them) to the cell's statistics."""
+        items = values.items() if isinstance(values, dict) else enumerate(values)
+        for k, v in items:
             if is_jit():   # Local: reduce within a SIMD packet first (many lanes, few cells)
                 dr.scatter_add(self.stats, v, cell * self.stats_per_cell + k, active,
                                mode=dr.ReduceMode.Local)

@@ -46,6 +46,7 @@ class Direct(NamedTuple):
     ls: "LightSample | None"     # the light sample (N_l = 1)
     f_l: "mi.Spectrum | None"    # f cos of the light sample's direction (N_l = 1)
     pdf_l: "mi.Float | None"     # the BSDF's pdf of that direction (N_l = 1)
+    light_scale: object = None   # with p_light: the light technique's sample count/probability
 
 
 class LightSample(NamedTuple):
@@ -71,6 +72,9 @@ class VertexEstimator:
                  roulette: Roulette | None = None):
         self.heur, self.n_l, self.n_b = heur, int(n_l), int(n_b)
         self.rr = roulette or Roulette("none")
+        #: whether a per-lane ``p_light`` of :meth:`direct` may exceed one (an expected number
+        #: of light samples; set by an integrator that allocates them)
+        self.allocates = False
 
     # ---- 1. light samples -----------------------------------------------------------------
     @staticmethod
@@ -117,12 +121,23 @@ class VertexEstimator:
         where the BSDF has no smooth lobe.  With ``p_light`` (N_l = 1 only; a Float per lane)
         the light sample is taken with that probability and weighted for it (its effective
         density p_light p_l, the estimate divided by p_light): stochastic next-event
-        estimation, unbiased for any p_light > 0."""
+        estimation, unbiased for any p_light > 0.  A ``p_light`` above one is an expected
+        number of light samples n: m = floor(n) or ceil(n) of them by stochastic rounding
+        (:meth:`extra_light_samples`), averaged (divided by m, at effective density m p_l: the
+        multi-sample MIS estimator given m, so unbiased for each m >= 1 and free of the noise
+        of dividing a random count by n).  ``Direct.light_scale`` is the light technique's
+        count or probability, for the weight of the emission the BSDF sample finds."""
         n_l = self.n_l if sel.count > 0 else 0
         smooth = active & mi.has_flag(bsdf_flags(bsdf), mi.BSDFFlags.Smooth)
         if n_l == 1:
+            scale = p_light
             if p_light is not None:
-                smooth &= sampler.next_1d(active) < p_light
+                u = sampler.next_1d(active)
+                smooth &= u < p_light
+                if dr.hint(self.allocates, mode="scalar"):
+                    base = dr.floor(p_light)
+                    scale = dr.select(p_light > 1.0,
+                                      base + dr.select(u < p_light - base, 1.0, 0.0), p_light)
             ls = self.light_sample(scene, sel, sampler, si, smooth)
             s1, s2 = sampler.next_1d(active), sampler.next_2d(active)
             if bsdf is None:
@@ -132,8 +147,9 @@ class VertexEstimator:
             if p_light is None:
                 L = self.light_term(ls, f_l, [self.n_b * pdf_l])
             else:
-                L = safe_div(self.light_term(ls, f_l, [self.n_b * pdf_l], p_light), p_light)
-            return Direct(L, bs, weight, ls.norm, ls, f_l, pdf_l)
+                L = safe_div(self.light_term(ls, f_l, [self.n_b * pdf_l], scale), scale)
+                L += self.extra_light_samples(scene, sel, sampler, ctx, si, bsdf, smooth, scale)
+            return Direct(L, bs, weight, ls.norm, ls, f_l, pdf_l, scale)
         L = mi.Spectrum(0.0)
         if n_l > 0:
             L = self.light_estimate(scene, sel, sampler, ctx, si, bsdf, smooth)
@@ -142,6 +158,24 @@ class VertexEstimator:
             return Direct(L, *no_bsdf_sample(), None, None, None, None)
         bs, weight = bsdf.sample(ctx, si, s1, s2, active)
         return Direct(L, bs, weight, None, None, None, None)
+
+    @dr.syntax
+    def extra_light_samples(self, scene, sel, sampler, ctx, si, bsdf, active, m):
+        """The light samples beyond the first where the lane's light-sample count ``m`` (an
+        integer-valued Float, see :meth:`direct`) exceeds one: m - 1 more, each at effective
+        density m p_l and divided by m (nothing where m <= 1)."""
+        L = mi.Spectrum(0.0)
+        if dr.hint(not self.allocates, mode="scalar"):
+            return L
+        more = active & (m > 1.0)
+        count = dr.select(more, mi.UInt32(m) - 1, 0)
+        j = mi.UInt32(0)
+        while dr.hint(more & (j < count), label="extra light samples"):
+            ls = self.light_sample(scene, sel, sampler, si, more)
+            f, pdf_b = bsdf.eval_pdf(ctx, si, si.to_local(ls.ds.d), ls.visible)
+            L += safe_div(self.light_term(ls, f, [self.n_b * pdf_b], m), m)
+            j += 1
+        return L
 
     # ---- 3. emission found by a BSDF sample ------------------------------------------------
     def emission(self, scene, sel, si_prev, si, q_bsdf: Sequence, delta, active, norm=None,
@@ -205,7 +239,7 @@ class VertexEstimator:
             ray = si.spawn_ray(si.to_world(d.bs.wo))
             si = scene.ray_intersect(ray, active)
             delta = mi.has_flag(d.bs.sampled_type, mi.BSDFFlags.Delta)
-            scale = p_l if learn else None
+            scale = d.light_scale if learn else None
             L_w, L_e, pdf_e = self.emission(scene, sel, si_prev, si, [self.n_b * d.bs.pdf],
                                             delta, active, d.norm, light_scale=scale,
                                             with_light_pdf=True)

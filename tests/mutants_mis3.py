@@ -1,0 +1,12 @@
+"""Mutants of mis3's learned light-sample allocation (see tests/mutation.py for the format)."""
+
+MUTANTS = [
+    # one light sample too many where a vertex takes more than one: biased high
+    ("allocation-one-extra-sample", "integrators/sampling/vertex.py",
+     "count = dr.select(more, mi.UInt32(m) - 1, 0)",
+     "count = dr.select(more, mi.UInt32(m), 0)", ["test_mis3_learned.py"]),
+    # the emission found by the BSDF sample weighted as if one light sample was taken
+    ("allocation-emission-weight-count-1", "integrators/sampling/vertex.py",
+     "scale = d.light_scale if learn else None",
+     "scale = dr.minimum(d.light_scale, 1.0) if learn else None", ["test_mis3_learned.py"]),
+]
