@@ -63,10 +63,18 @@ With p(1) = p(2) = 0 (``p_light = 1``) the continuation is the BSDF's own sample
   candidates are estimated from the same samples; between passes each region takes the
   candidate minimising (M(p) - mean^2) (1 + 0.5 p) (a light sample costs about half a vertex),
   keeping p = 1 unless another candidate promises 20 % less, and p(3) = 1 until the region has
-  64 recorded visits.  The candidates start at 0.05: the floor that keeps delta lights (which
-  only light sampling reaches) and every other light reachable.  An eighth of the vertices
-  record statistics.  Rendering in passes (``render --spp`` or ``--time``) keeps learning;
-  a new scene starts from scratch.
+  64 recorded visits and 32 non-zero samples.  The candidates start at 0.05: the floor that
+  keeps delta lights (which only light sampling reaches) and every other light reachable.
+  **Candidates above one allocate light samples** (Sbert and Havran's variance-optimal sample
+  allocation for MIS): an expected count n is rounded stochastically to m = floor(n) or
+  ceil(n) light samples, averaged, each weighted at the effective density m p_l (the
+  multi-sample MIS estimator given m, unbiased for every m >= 1), and emission found by the
+  BSDF sample is weighted against m p_l; M(n) is estimated by the same formula.
+  An eighth of the vertices record statistics.  A render call that is still learning spends
+  its first eighth of samples learning, then renders the rest with what it learned; learning
+  stops (the kernel drops its statistics) once a pass changes the decisions of less than 5 %
+  of the visits.  Rendering in passes (``render --spp`` or ``--time``) keeps learning until
+  then; a new scene starts from scratch (``reset_learning()`` forgets on request).
 """
 from __future__ import annotations
 
