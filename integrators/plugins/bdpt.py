@@ -10,7 +10,9 @@ most ``max_depth`` segments (s + t - 1):
 * s = 1: next-event estimation at camera vertex z_{t-1} (a fresh light sample, as pbrt-v4);
 * t = 1: light tracing: each smooth light vertex y_i (i >= 1) is connected to the pinhole and its
   contribution splatted onto the film at the pixel it projects to (an image block with atomic
-  adds, Mitsuba's ``ptracer`` normalisation: 1/spp, the sensor's importance);
+  adds; 1/spp and the sensor's importance as Mitsuba's ``ptracer``); each pixel's splat sum is
+  divided by the integral of its reconstruction filter over the film, so that it estimates the
+  same filtered pixel value as the camera samples' weighted mean (any filter, edges included);
 * s, t >= 2: a shadow ray between y_{s-1} and z_{t-1} (both with a smooth lobe).
 
 The strategy s = 1, t = 1 (a point on a light projected onto the film) is not used: emitters seen
@@ -129,7 +131,7 @@ class BDPT(IntegratorTemplate):
         film.prepare([])
         block = film.create_block()
         block.set_offset(film.crop_offset())
-        block_lt = film.create_block(mi.ScalarVector2u(0), True, False)
+        block_lt = film.create_block(mi.ScalarVector2u(0), False, False)
         block_lt.set_offset(film.crop_offset())
         block_lt.set_coalesce(False)
         if len(scene.emitters()) == 0 or self.max_depth == 0:
@@ -147,7 +149,7 @@ class BDPT(IntegratorTemplate):
             self.render_chunk(scene, sensor, sel, block, block_lt, n, spp, chunk_seed, cap)
             done += n
             chunk += 1
-        combined = _combine(block, block_lt)
+        combined = _combine(block, block_lt, _filter_mass(film))
         film.put_block(mi.ImageBlock(combined, film.crop_offset(), film.rfilter(),
                                      False, False))
         if not develop:
@@ -395,9 +397,28 @@ def _camera_rays(sensor, sampler, spp):
     return mi.Ray3f(ray), weight, splat
 
 
-def _combine(block, block_lt):
-    """The camera block with the light-tracing sums added to its colour channels, scaled by
-    the pixel's filter weight (so that the film's weight division leaves them as they are)."""
+def _filter_mass(film, n: int = 8):
+    """F_j = the integral over the film of pixel j's reconstruction filter, by an n x n grid
+    of splats per pixel (exact for the box filter; smooth filters converge fast): the expected
+    filter weight one camera sample per pixel gives pixel j."""
+    size = film.crop_size()
+    w, h = int(size[0]), int(size[1])
+    idx = dr.arange(mi.UInt32, w * h * n * n)
+    sub = idx % (n * n)
+    pix = idx // (n * n)
+    pos = mi.Vector2f(mi.Float(pix % w) + (mi.Float(sub % n) + 0.5) / n,
+                      mi.Float(pix // w) + (mi.Float(sub // n) + 0.5) / n)
+    blk = mi.ImageBlock(size, film.crop_offset(), 1, film.rfilter(), False, False)
+    blk.set_coalesce(False)
+    blk.put(pos + mi.Vector2f(film.crop_offset()), [mi.Float(1.0 / (n * n))])
+    return blk.tensor()
+
+
+def _combine(block, block_lt, mass):
+    """The camera block with the light-tracing sums added to its colour channels: each pixel's
+    splat sum divided by its filter mass F_j (so that it estimates the same filtered pixel
+    value as the camera samples' weighted mean), times the pixel's camera weight (which the
+    film's weight division then removes)."""
     t = block.tensor()
     lt = block_lt.tensor()
     shape = t.shape
@@ -409,5 +430,6 @@ def _combine(block, block_lt):
     pix = idx // ch
     w = dr.gather(mi.Float, data, pix * ch + w_idx)
     add = dr.gather(mi.Float, lt.array, pix * lt.shape[2] + c, c < 3)
-    out = data + dr.select(c < 3, add * w, 0.0)
+    f = dr.gather(mi.Float, mass.array, pix, c < 3)
+    out = data + dr.select((c < 3) & (f > 0), add * w / dr.select(f > 0, f, 1.0), 0.0)
     return mi.TensorXf(out, shape)

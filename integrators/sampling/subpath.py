@@ -226,6 +226,7 @@ def delta_direction_pdf(emitter) -> float:
     _, w_dir = emitter.sample_direction(it, mi.Point2f(0.5, 0.5), True)
     a = np.array(mi.unpolarized_spectrum(w_dir)[0], dtype=np.float64).ravel()   # I / 1^2
     b = np.array(mi.unpolarized_spectrum(w)[0], dtype=np.float64).ravel()       # I / p
+    a, b = np.broadcast_arrays(a, b)
     ok = (a > 0) & (b > 0) & np.isfinite(a) & np.isfinite(b)
     return float(np.median(a[ok] / b[ok])) if ok.any() else 1.0 / (4.0 * np.pi)
 
