@@ -11,9 +11,10 @@ around any such normal (pi/2 for Lambertian emitters), plus a two-sided flag (th
 +-w).  The **importance** of a node at a shading point x with normal n (pbrt-v4's
 ``LightBounds::Importance``) is
 
-    I = Phi cos(theta') / max(d^2, r^2) * cos(max(theta_i - theta_b, 0)),
+    I = Phi cos(theta') / max(d^2, r) * cos(max(theta_i - theta_b, 0)),
 
-with d the distance from x to the box centre, r the box's half diagonal, theta_b the half-angle
+with d the distance from x to the box centre, r the box's half diagonal (pbrt's clamp: a length,
+not its square, so nodes that contain x still rank their children by distance), theta_b the half-angle
 the box's bounding sphere subtends at x (pi inside it), theta' = max(theta_w - theta_o - theta_b,
 0) the smallest angle between the cone and the direction to x, and theta_i the angle between that
 direction and the line of n (|cos|: the receiver may transmit).  I = 0 only when no point of the
@@ -177,6 +178,7 @@ class Tree:
         self.depth = np.zeros(n_lights, np.uint32)
         self.trail = np.zeros(n_lights, np.uint64)
         self.node_of = np.zeros(n_lights, np.int64)
+        self.centre = np.zeros((n_nodes, 3))
 
     @property
     def size(self):
@@ -270,6 +272,7 @@ def build(lo, hi, w, cos_o, cos_e, two, phi) -> Tree:
     j = (tree.info[lf] & ~LEAF).astype(np.int64)
     tree.lo[lf], tree.hi[lf], tree.w[lf] = lo[j], hi[j], w[j]
     tree.cos_o[lf], tree.cos_e[lf], tree.phi[lf], tree.two[lf] = cos_o[j], cos_e[j], phi[j], two[j]
+    tree.centre[lf] = centroid[j]
     for lev in range(int(tree.level.max()), -1, -1):
         nd = np.nonzero((tree.level == lev) & ~is_leaf)[0]
         if not len(nd):
@@ -279,6 +282,8 @@ def build(lo, hi, w, cos_o, cos_e, two, phi) -> Tree:
         tree.lo[nd] = np.minimum(tree.lo[a], tree.lo[b2])
         tree.hi[nd] = np.maximum(tree.hi[a], tree.hi[b2])
         tree.phi[nd] = tree.phi[a] + tree.phi[b2]
+        tree.centre[nd] = ((tree.phi[a, None] * tree.centre[a] + tree.phi[b2, None] * tree.centre[b2])
+                           / np.maximum(tree.phi[nd], 1e-300)[:, None])
         tree.two[nd] = tree.two[a] | tree.two[b2]
         tree.cos_e[nd] = np.minimum(tree.cos_e[a], tree.cos_e[b2])
         tree.w[nd], tree.cos_o[nd] = cone_union(tree.w[a], tree.cos_o[a], tree.w[b2], tree.cos_o[b2])
@@ -388,22 +393,29 @@ class DeviceTree:
     """The tree in Dr.Jit arrays (numpy arrays in scalar variants), with the importance bound,
     the traversal and the root-to-leaf pmf."""
 
-    FIELDS = ("lx", "ly", "lz", "hx", "hy", "hz", "wx", "wy", "wz", "cos_o", "sin_o", "cos_e",
-              "phi", "two")
+    # phi < 0 marks a two-sided node; (cx, cy, cz): the power-weighted centre of its lights
+    FIELDS = ("lx", "ly", "lz", "hx", "hy", "hz", "wx", "wy", "wz", "cos_o", "cos_e", "phi",
+              "cx", "cy", "cz")
+    CLAMP = "pbrt"          # distance clamp: "pbrt" (|diag| / 2) or "square" ((|diag| / 2)^2)
+    CENTRE = "power"        # distance to: "power" (power-weighted centre) or "box" (box centre)
 
     def __init__(self, tree: Tree):
         cos_o = np.clip(tree.cos_o, -1, 1)
         lo, hi = _down(tree.lo), _up(tree.hi)
         cols = dict(lx=lo[:, 0], ly=lo[:, 1], lz=lo[:, 2], hx=hi[:, 0], hy=hi[:, 1], hz=hi[:, 2],
                     wx=tree.w[:, 0], wy=tree.w[:, 1], wz=tree.w[:, 2], cos_o=cos_o,
-                    sin_o=np.sqrt(np.maximum(1 - cos_o ** 2, 0)), cos_e=tree.cos_e,
-                    phi=tree.phi, two=tree.two.astype(float))
+                    cos_e=tree.cos_e, phi=np.where(tree.two, -tree.phi, tree.phi),
+                    cx=tree.centre[:, 0], cy=tree.centre[:, 1], cz=tree.centre[:, 2])
         self.size = tree.size
         self.root_leaf = bool(tree.info[0] & LEAF)
         trail_lo = (tree.trail & np.uint64(0xFFFFFFFF)).astype(np.uint32)
         trail_hi = (tree.trail >> np.uint64(32)).astype(np.uint32)
         if is_jit():
-            self.col = {k: mi.Float(np.asarray(v, np.float32)) for k, v in cols.items()}
+            # 16 floats per node, read as four 4-wide (packet) gathers
+            packed = np.zeros((self.size, 16), np.float32)
+            for k, name in enumerate(self.FIELDS):
+                packed[:, k] = cols[name]
+            self.packed = mi.Float(packed.ravel())
             self.info = mi.UInt32(tree.info)
             self.depth = mi.UInt32(tree.depth)
             self.trail_lo, self.trail_hi = mi.UInt32(trail_lo), mi.UInt32(trail_hi)
@@ -419,7 +431,12 @@ class DeviceTree:
 
     def importance(self, node, p, n, active=True):
         """pbrt-v4's LightBounds::Importance of ``node`` at point p with surface normal n."""
-        g = {k: self._get(v, node, active=active) for k, v in self.col.items()}
+        if is_jit():
+            q = [dr.gather(mi.Vector4f, self.packed, node * 4 + k, active) for k in range(4)]
+            flat = [q[k // 4][k % 4] for k in range(16)]
+            g = {name: flat[k] for k, name in enumerate(self.FIELDS)}
+        else:
+            g = {k: self._get(v, node, active=active) for k, v in self.col.items()}
         lo = mi.Point3f(g["lx"], g["ly"], g["lz"])
         hi = mi.Point3f(g["hx"], g["hy"], g["hz"])
         pc = 0.5 * (lo + hi)
@@ -429,18 +446,27 @@ class DeviceTree:
         inv = dr.rsqrt(dr.maximum(d2, 1e-30))
         wi = d * inv                                   # from the light towards p
         cos_w = dr.dot(mi.Vector3f(g["wx"], g["wy"], g["wz"]), wi)
-        cos_w = dr.select(g["two"] > 0.5, dr.abs(cos_w), cos_w)
+        phi = g["phi"]
+        cos_w = dr.select(phi < 0, dr.abs(cos_w), cos_w)
         sin_w = dr.safe_sqrt(1.0 - cos_w * cos_w)
         # half-angle subtended by the bounding sphere of the box (whole sphere inside it)
         inside = d2 < r2
         cos_b = dr.select(inside, -1.0, dr.safe_sqrt(1.0 - r2 / dr.maximum(d2, 1e-30)))
         sin_b = dr.select(inside, 0.0, dr.safe_sqrt(1.0 - cos_b * cos_b))
-        cos_o, sin_o = g["cos_o"], g["sin_o"]
+        cos_o = g["cos_o"]
+        sin_o = dr.safe_sqrt(1.0 - cos_o * cos_o)
         # theta_x = max(theta_w - theta_o, 0); theta' = max(theta_x - theta_b, 0)
         cos_x = dr.select(cos_w > cos_o, 1.0, cos_w * cos_o + sin_w * sin_o)
         sin_x = dr.select(cos_w > cos_o, 0.0, sin_w * cos_o - cos_w * sin_o)
         cos_p = dr.select(cos_x > cos_b, 1.0, cos_x * cos_b + sin_x * sin_b)
-        imp = g["phi"] * dr.maximum(cos_p, RECEIVER_FLOOR) / dr.maximum(dr.maximum(d2, r2), 1e-12)
+        # pbrt-v4 clamps d^2 at half the box diagonal's length (not its square): large nodes
+        # that contain x still tell their children apart by the distance to their centres
+        if self.CENTRE == "power":
+            d2 = dr.squared_norm(p - mi.Point3f(g["cx"], g["cy"], g["cz"]))
+        clamp = {"pbrt": lambda: dr.sqrt(r2), "square": lambda: r2, "none": lambda: 0.0,
+                 "tenth": lambda: 0.1 * dr.sqrt(r2), "height": lambda: 0.25 * r2}[self.CLAMP]()
+        d2c = dr.maximum(dr.maximum(d2, clamp), 1e-12)
+        imp = dr.abs(phi) * dr.maximum(cos_p, RECEIVER_FLOOR) / d2c
         imp = dr.select(cos_p > g["cos_e"] - COS_E_SLACK, imp, 0.0)
         cos_i = dr.abs(dr.dot(wi, n))
         sin_i = dr.safe_sqrt(1.0 - cos_i * cos_i)

@@ -1,0 +1,249 @@
+r"""Light-tree benchmark (issue 15): ``light_selection=bvh`` against Mitsuba's ``path`` and our
+``power`` and ``adaptive`` selections, from a few to many lights.
+
+    python -m benchmarks.light_tree [--lights 64 1024 4096 16384] [--res 64] [--spp 4]
+        [--repeats 3] [--ref-spp 512] [--adaptive-max 4096] [--few] [--out DIR]
+
+Scenes: ``scenes/tools/make_light_field.py`` (N sphere lights over a floor, powers over three
+decades), built at run time, one fresh process per N (every emitter alive in a process is traced
+into its kernels); ``--few`` adds ``veach_mis`` and ``cornell_box``.  Direct light only
+(``max_depth`` 2, ``hide_emitters``) on the light fields, ``max_depth`` 4 on the few-light
+scenes.  Methods:
+Mitsuba's ``path`` and our ``nee_path`` with ``light_selection`` = ``power``, ``adaptive`` (only
+up to ``--adaptive-max`` lights: its set-up is O(N) scalar work) and ``bvh``; the same estimator
+otherwise, so the columns compare light selection.
+
+Measured per scene, side by side in one process:
+
+* **set-up**: wall time of the first ``mi.render`` with a fresh integrator (1 spp): light powers,
+  tree build, tracing and compiling (or loading from Dr.Jit's kernel cache) included; path first;
+* **per-call overhead**: wall time of a later 1-spp render (Mitsuba's per-call work over the
+  emitters, which at thousands of lights dwarfs the kernel);
+* **time per sample**: the execution time of the render's kernels from Dr.Jit's kernel history
+  (``JitFlag.KernelHistory``), divided by pixels x spp; median over ``--repeats`` renders taken
+  round-robin over the methods;
+* **relMSE at 1 spp**: sum over pixels of (I - R)^2 / sum R^2 of a ``--spp`` render times spp,
+  averaged over the repeats; R: ``nee_path`` with ``bvh`` at ``--ref-spp`` (its own noise, about
+  spp / ref-spp of a method's relMSE, is left in);
+* **efficiency vs path** = (relMSE x time per sample) of ``path`` / that of the method.
+
+Writes ``light_tree.json``, ``light_tree.md`` (the table) and ``light_tree_cost.png`` (time per
+sample and set-up against N) under ``--out`` (default ``benchmarks/results/light_tree``).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+from .config import REPO
+
+OUT = REPO / "benchmarks" / "results" / "light_tree"
+LIGHTS = (64, 1024, 4096, 16384)
+SELECTIONS = ("power", "adaptive", "bvh")
+
+
+def _methods(n_lights, adaptive_max, depth):
+    # the light fields hide their emitters from the camera: the tiny bright spheres seen
+    # directly would dominate every method's error (pixel aliasing, not light selection)
+    hide = {"hide_emitters": True} if n_lights is not None else {}
+    out = {"path": {"type": "path", "max_depth": depth, **hide}}
+    for s in SELECTIONS:
+        if s == "adaptive" and n_lights is not None and n_lights > adaptive_max:
+            continue
+        out[s] = {"type": "nee_path", "max_depth": depth, "light_selection": s, **hide}
+    return out
+
+
+def _kernel_seconds(dr):
+    hist = dr.kernel_history()
+    return sum(float(k.get("execution_time", 0.0) or 0.0) for k in hist) / 1000.0
+
+
+def measure(scene_name: str, n_lights, res: int, spp: int, repeats: int, ref_spp: int,
+            adaptive_max: int) -> dict:
+    """All measurements of one scene (run in its own process)."""
+    import drjit as dr
+    import mitsuba as mi
+    mi.set_variant("llvm_ad_rgb")
+    import numpy as np
+    import integrators  # noqa: F401  (registers the plugins)
+    sys.path.insert(0, str(REPO / "scenes" / "tools"))
+    t0 = time.perf_counter()
+    if n_lights is not None:
+        import make_light_field
+        scene = mi.load_dict(make_light_field.scene_dict(n_lights, res=res, spp=spp))
+        depth = 2
+    else:
+        params = {"res": str(res)} if scene_name == "cornell_box" else {
+            "width": str(res), "height": str(max(1, res * 9 // 16))}
+        scene = mi.load_file(str(REPO / "scenes" / f"{scene_name}.xml"), **params)
+        depth = 4
+    load_s = time.perf_counter() - t0
+    methods = _methods(n_lights, adaptive_max, depth)
+    film = scene.sensors()[0].film().crop_size()
+    pixels = int(film[0]) * int(film[1])
+
+    def render(integ, s, seed):
+        dr.kernel_history()      # returns and clears the history so far
+        t = time.perf_counter()
+        img = mi.render(scene, integrator=integ, spp=s, seed=seed)
+        dr.eval(img)
+        dr.sync_thread()
+        wall = time.perf_counter() - t
+        return np.array(img, dtype=np.float64)[..., :3], wall, _kernel_seconds(dr)
+
+    dr.set_flag(dr.JitFlag.KernelHistory, True)
+    integs, setup, overhead = {}, {}, {}
+    for name, d in methods.items():
+        integs[name] = mi.load_dict(d)
+        _, setup[name], _ = render(integs[name], 1, 0)
+        _, overhead[name], _ = render(integs[name], 1, 1)
+    ref, _, _ = render(integs["bvh"], ref_spp, 12345)
+    ref_sq = float((ref ** 2).sum())
+    rel, tps, means = {m: [] for m in methods}, {m: [] for m in methods}, {m: [] for m in methods}
+    for r in range(repeats):
+        for name in methods:
+            img, _, kern = render(integs[name], spp, 1000 + 17 * r)
+            rel[name].append(float(((img - ref) ** 2).sum()) / ref_sq * spp)
+            tps[name].append(kern / (pixels * spp))
+            means[name].append(float(img.mean()))
+    out = {"scene": scene_name, "lights": n_lights if n_lights is not None else
+           len(scene.emitters()), "pixels": pixels, "spp": spp, "repeats": repeats,
+           "ref_spp": ref_spp, "load_s": load_s, "ref_mean": float(ref.mean()), "methods": {}}
+    for name in methods:
+        out["methods"][name] = {
+            "setup_s": setup[name], "overhead_s": overhead[name],
+            "relmse_1spp": statistics.mean(rel[name]),
+            "time_per_sample_us": statistics.median(tps[name]) * 1e6,
+            "mean_ratio": statistics.mean(means[name]) / max(float(ref.mean()), 1e-30)}
+    base = out["methods"]["path"]
+    for name, m in out["methods"].items():
+        m["efficiency_vs_path"] = ((base["relmse_1spp"] * base["time_per_sample_us"])
+                                   / max(m["relmse_1spp"] * m["time_per_sample_us"], 1e-30))
+    return out
+
+
+def _fmt(x, f="{:.3g}"):
+    return "-" if x is None else f.format(x)
+
+
+def table(results) -> str:
+    cols = ["path", "power", "adaptive", "bvh"]
+    head = ("| scene | lights | relMSE at 1 spp: " + " / ".join(cols) + " | time per sample (us): "
+            + " / ".join(cols) + " | efficiency vs path: " + " / ".join(cols[1:])
+            + " | set-up, first render (s): " + " / ".join(cols) + " | per-call overhead (s): "
+            + " / ".join(cols) + " | bvh mean / reference |")
+    lines = [head, "|" + "---|" * 9]
+    for r in results:
+        m = r["methods"]
+
+        def get(k, name, f="{:.3g}"):
+            return _fmt(m[name][k] if name in m else None, f)
+        lines.append(
+            f"| {r['scene']} | {r['lights']:,} | "
+            + " / ".join(get("relmse_1spp", c) for c in cols) + " | "
+            + " / ".join(get("time_per_sample_us", c) for c in cols) + " | "
+            + " / ".join(get("efficiency_vs_path", c, "{:.1f}x") for c in cols[1:]) + " | "
+            + " / ".join(get("setup_s", c, "{:.1f}") for c in cols) + " | "
+            + " / ".join(get("overhead_s", c, "{:.1f}") for c in cols) + " | "
+            + f"{m['bvh']['mean_ratio']:.4f} |")
+    fields = [r for r in results if r["scene"] == "light_field"]
+    if fields:
+        lo, hi = min(fields, key=lambda r: r["lights"]), max(fields, key=lambda r: r["lights"])
+        b = [r["methods"]["bvh"] for r in (lo, hi)]
+        lines += ["", f"bvh time per sample at {hi['lights']:,} / at {lo['lights']:,} lights: "
+                  f"{b[1]['time_per_sample_us'] / b[0]['time_per_sample_us']:.2f}x; "
+                  f"bvh set-up / path first render at {hi['lights']:,} lights: "
+                  f"{b[1]['setup_s'] / hi['methods']['path']['setup_s']:.2f}x"]
+    few = [r for r in results if r["scene"] != "light_field"]
+    for r in few:
+        m = r["methods"]
+        lines.append(f"{r['scene']}: efficiency bvh / power = "
+                     f"{m['bvh']['efficiency_vs_path'] / m['power']['efficiency_vs_path']:.2f}")
+    return "\n".join(lines) + "\n"
+
+
+def chart(path: Path, results) -> None:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    fields = sorted((r for r in results if r["scene"] == "light_field"), key=lambda r: r["lights"])
+    if not fields:
+        return
+    fig, ax = plt.subplots(1, 2, figsize=(10, 4))
+    for name, colour in (("path", "k"), ("power", "tab:blue"), ("adaptive", "tab:orange"),
+                         ("bvh", "tab:green")):
+        pts = [(r["lights"], r["methods"][name]) for r in fields if name in r["methods"]]
+        if not pts:
+            continue
+        n = [p[0] for p in pts]
+        ax[0].plot(n, [p[1]["time_per_sample_us"] for p in pts], "o-", color=colour, label=name)
+        ax[1].plot(n, [p[1]["setup_s"] for p in pts], "o-", color=colour, label=name)
+    for a, t in zip(ax, ("kernel time per sample (us)", "set-up: first render (s)")):
+        a.set_xscale("log")
+        a.set_yscale("log")
+        a.set_xlabel("lights")
+        a.set_title(t)
+        a.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m benchmarks.light_tree",
+                                 description=__doc__.split("\n\n")[0])
+    ap.add_argument("--lights", type=int, nargs="+", default=list(LIGHTS))
+    ap.add_argument("--res", type=int, default=64)
+    ap.add_argument("--spp", type=int, default=4)
+    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--ref-spp", type=int, default=512)
+    ap.add_argument("--adaptive-max", type=int, default=4096)
+    ap.add_argument("--few", action="store_true", help="also veach_mis and cornell_box")
+    ap.add_argument("--out", type=Path, default=OUT)
+    ap.add_argument("--one", nargs=2, metavar=("SCENE", "N"), help=argparse.SUPPRESS)
+    a = ap.parse_args(argv)
+    for k in ("res", "spp", "repeats", "ref_spp"):
+        if getattr(a, k) < 1:
+            ap.error(f"--{k.replace('_', '-')}: {getattr(a, k)} is not allowed; at least 1")
+    if any(n < 1 for n in a.lights):
+        ap.error(f"--lights: {a.lights} not allowed; every count at least 1")
+    if a.one:
+        scene, n = a.one
+        r = measure(scene, None if n == "-" else int(n), a.res, a.spp, a.repeats, a.ref_spp,
+                    a.adaptive_max)
+        print("RESULT " + json.dumps(r))
+        return 0
+    jobs = [("light_field", str(n)) for n in a.lights]
+    if a.few:
+        jobs += [("veach_mis", "-"), ("cornell_box", "-")]
+    results = []
+    for scene, n in jobs:
+        cmd = [sys.executable, "-m", "benchmarks.light_tree", "--one", scene, n,
+               "--res", str(a.res), "--spp", str(a.spp), "--repeats", str(a.repeats),
+               "--ref-spp", str(a.ref_spp), "--adaptive-max", str(a.adaptive_max)]
+        p = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True)
+        line = [ln for ln in p.stdout.splitlines() if ln.startswith("RESULT ")]
+        if p.returncode != 0 or not line:
+            sys.stderr.write(p.stdout[-2000:] + p.stderr[-4000:])
+            print(f"light_tree benchmark: {scene} {n} failed", file=sys.stderr)
+            return 1
+        results.append(json.loads(line[0][7:]))
+        print(table(results[-1:]).splitlines()[2], flush=True)
+    a.out.mkdir(parents=True, exist_ok=True)
+    (a.out / "light_tree.json").write_text(json.dumps(results, indent=1))
+    md = ("# Light tree benchmark\n\n`python -m benchmarks.light_tree " + " ".join(
+        sys.argv[1:] if argv is None else argv) + "`\n\n" + table(results))
+    (a.out / "light_tree.md").write_text(md)
+    chart(a.out / "light_tree_cost.png", results)
+    print(md)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

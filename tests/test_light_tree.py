@@ -1,0 +1,393 @@
+"""light_selection=bvh (integrators/sampling/light_tree.py): the light BVH.
+
+* the tree: every node's power is the sum of its leaves', its box holds its children's, its cone
+  holds its children's axes; every light is one leaf, reached by its bit trail;
+* pmf: sum over all emitters of p(j | x) is 1 at random points and normals where every light
+  can contribute (mixed scenes: rectangles, spheres, a mesh, point and spot lights, a constant
+  environment, a zero-power light), at most 1 elsewhere, the rest being the measured chance
+  that no light is chosen; the light traversal draws has p(j | x) = pmf_at(x, j) exactly;
+* chi-square (integrators/testing/chi2.py, H0: the drawn light index has the pmf pmf_at;
+  Pearson over unit cells of the index line, alpha = 1e-3 family-wise over the points);
+* a light of zero power is never chosen and has pmf 0; a light that can contribute to x always
+  has p(j | x) > 0 (and a one-sided light seen from behind has 0);
+* unbiased (H0: unbiased; Student t on batch means against the closed form, Sidak over RGB,
+  alpha = 1e-4 (the kit's default), relative s.e. < 0.5 %) on the many-light plane (64
+  rectangles with radiance over four decades, two point lights, a zero-power rectangle: the
+  sum of Lambert terms) for direct_mis, nee_path and mis3 with bvh;
+* the scalar and spectral variants run it.
+"""
+from __future__ import annotations
+
+import importlib.util
+from pathlib import Path
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+import pytest
+
+import integrators
+from integrators.sampling import light_tree as lt
+from integrators.sampling.light_selection import make
+from integrators.testing import assert_unbiased
+from integrators.testing.chi2 import chi2_test
+from integrators.testing.scenes import light_rect, plane_scene
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _tool(name):
+    spec = importlib.util.spec_from_file_location(name, ROOT / "scenes" / "tools" / f"{name}.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+many = _tool("make_many_lights")
+field = _tool("make_light_field")
+
+RHO = 0.5
+POINTS = [(0.1, 0.2, 0.0), (1.9, -1.3, 0.0), (-2.6, 2.4, 0.0)]
+LAMPS = [((0.5, -0.4, 0.8), 0.6), ((-1.7, 1.1, 1.2), 2.5)]
+
+
+def plane_with_lights(spp=4096):
+    """The 64 rectangles of scenes/many_lights.xml, two point lights and a rectangle of zero
+    radiance over the diffuse floor: (scene dict, expected radiance per point)."""
+    rects = [(light_rect(c, (hx, hy)), le) for c, (hx, hy), le in many.lights()]
+    rects.append((light_rect((0.3, 0.1, 0.7), (0.3, 0.3)), 0.0))
+    return plane_scene(rects, points=LAMPS, sensors_at=POINTS, spp=spp, rho=RHO,
+                       view=(0.2, -0.3, 0.4))
+
+
+def mixed_scene(dark=True):
+    """Every kind of emitter the tree handles, plus a dark one (not in spectral variants,
+    where a zero spectrum cannot be sampled)."""
+    T = mi.ScalarTransform4f
+    d = {"type": "scene",
+            "floor": {"type": "rectangle", "to_world": T().scale(10)},
+            "rect": {"type": "rectangle", "to_world": light_rect((1, 0, 2), (0.3, 0.2)),
+                     "emitter": {"type": "area", "radiance": 5.0}},
+            "disk": {"type": "disk", "to_world": T().translate([-2, 1, 1]).scale(0.3),
+                     "emitter": {"type": "area", "radiance": 2.0}},
+            "ball": {"type": "sphere", "center": [0, 3, 1], "radius": 0.2,
+                     "emitter": {"type": "area", "radiance": 10.0}},
+            "cube": {"type": "cube", "to_world": T().translate([3, -2, 0.5]).scale(0.2),
+                     "emitter": {"type": "area", "radiance": 1.0}},
+            "dark": {"type": "rectangle", "to_world": light_rect((0, 0, 1), (0.2, 0.2)),
+                     "emitter": {"type": "area", "radiance": 0.0}},
+            "point": {"type": "point", "position": [-1, -1, 1.5], "intensity": 3.0},
+            "spot": {"type": "spot", "intensity": 20.0, "cutoff_angle": 30,
+                     "to_world": T().look_at([2, 2, 3], [2, 2, 0], [0, 1, 0])},
+            "env": {"type": "constant", "radiance": 0.1}}
+    if not dark:
+        del d["dark"]
+    return d
+
+
+def _points(n, rng, z=(0.0, 1.0), half=4.0):
+    p = np.stack([rng.uniform(-half, half, n), rng.uniform(-half, half, n),
+                  rng.uniform(*z, n)], 1)
+    nrm = rng.normal(size=(n, 3))
+    nrm /= np.linalg.norm(nrm, axis=1)[:, None]
+    return p, nrm
+
+
+def _si(p, n):
+    si = dr.zeros(mi.SurfaceInteraction3f, len(p))
+    si.p = mi.Point3f(*[mi.Float(p[:, k].astype(np.float32)) for k in range(3)])
+    si.n = mi.Vector3f(*[mi.Float(n[:, k].astype(np.float32)) for k in range(3)])
+    si.sh_frame = mi.Frame3f(si.n)
+    return si
+
+
+def pmf_matrix(sel, p, n):
+    """p(j | x_i) for every point i and emitter j: (points, emitters)."""
+    m = len(p)
+    k = sel.count
+    pp, nn = np.repeat(p, k, 0), np.repeat(n, k, 0)
+    em = dr.gather(mi.EmitterPtr, sel.emitters_dr, mi.UInt32(np.tile(np.arange(k), m)))
+    return np.array(sel.pmf_at(_si(pp, nn), em), dtype=np.float64).reshape(m, k)
+
+
+def _index_of(sel, emitter):
+    ids = np.array(dr.reinterpret_array(mi.UInt32, emitter), dtype=np.int64)
+    all_ids = np.array(dr.reinterpret_array(mi.UInt32, sel.emitters_dr), dtype=np.int64)
+    table = np.full(max(all_ids.max(), ids.max()) + 1, -1)
+    table[all_ids] = np.arange(len(all_ids))
+    return table[ids]
+
+
+@pytest.fixture(scope="module")
+def plane():
+    d, expected = plane_with_lights()
+    return mi.load_dict(d), expected
+
+
+@pytest.fixture(scope="module")
+def plane_sel(plane):
+    return make(plane[0], "bvh")
+
+
+@pytest.fixture(scope="module")
+def mixed_sel():
+    return make(mi.load_dict(mixed_scene()), "bvh")
+
+
+# ---------------------------------------------------------------------------------------------
+def _check_tree(tree: lt.Tree, n_lights: int):
+    info = tree.info
+    leaf = (info & lt.LEAF) != 0
+    assert leaf.sum() == n_lights and tree.size == 2 * n_lights - 1
+    assert sorted((info[leaf] & ~lt.LEAF).tolist()) == list(range(n_lights))
+    inner = np.nonzero(~leaf)[0]
+    a = info[inner].astype(np.int64)
+    for c in (a, a + 1):
+        assert np.all(tree.lo[inner] <= tree.lo[c]) and np.all(tree.hi[inner] >= tree.hi[c])
+        # the parent's cone holds the child's: angle(w_p, w_c) + theta_c <= theta_p
+        ang = lt._angle_between(tree.w[inner], tree.w[c]) + np.arccos(np.clip(tree.cos_o[c], -1, 1))
+        full = tree.cos_o[inner] <= -1 + 1e-9
+        assert np.all(full | (ang <= np.arccos(np.clip(tree.cos_o[inner], -1, 1)) + 1e-6))
+        assert np.all(tree.cos_e[inner] <= tree.cos_e[c])
+    assert np.allclose(tree.phi[inner], tree.phi[a] + tree.phi[a + 1])
+    # every light's bit trail leads from the root to its leaf
+    for j in range(n_lights):
+        node = 0
+        for k in range(int(tree.depth[j])):
+            node = int(info[node]) + int((int(tree.trail[j]) >> k) & 1)
+        assert info[node] == (lt.LEAF | j)
+    assert tree.depth.max() <= lt.MAX_DEPTH
+
+
+@pytest.mark.parametrize("n", [1, 2, 3, 17, 300])
+def test_tree_invariants(n):
+    rng = np.random.default_rng(n)
+    c = rng.uniform(-5, 5, (n, 3))
+    half = rng.uniform(0, 0.3, (n, 3))
+    w = rng.normal(size=(n, 3))
+    w /= np.linalg.norm(w, axis=1)[:, None]
+    cos_o = np.where(rng.random(n) < 0.3, -1.0, rng.uniform(0.5, 1.0, n))
+    tree = lt.build(c - half, c + half, w, cos_o, np.zeros(n), rng.random(n) < 0.2,
+                    10 ** rng.uniform(0, 3, n))
+    _check_tree(tree, n)
+
+
+def test_tree_invariants_same_place():
+    """All lights at one point (no valid SAOH split): median splits, still a full tree."""
+    n = 40
+    tree = lt.build(np.zeros((n, 3)), np.zeros((n, 3)), np.tile([0, 0, 1.0], (n, 1)),
+                    -np.ones(n), np.zeros(n), np.zeros(n, bool), np.ones(n))
+    _check_tree(tree, n)
+
+
+def test_cone_union_bounds_both():
+    rng = np.random.default_rng(3)
+    n = 1000
+    wa, wb = rng.normal(size=(n, 3)), rng.normal(size=(n, 3))
+    wa /= np.linalg.norm(wa, axis=1)[:, None]
+    wb /= np.linalg.norm(wb, axis=1)[:, None]
+    ca, cb = rng.uniform(-0.5, 1, n), rng.uniform(-0.5, 1, n)
+    w, c = lt.cone_union(wa, ca, wb, cb)
+    t = np.arccos(np.clip(c, -1, 1))
+    for wx, cx in ((wa, ca), (wb, cb)):
+        need = lt._angle_between(w, wx) + np.arccos(cx)
+        assert np.all((c <= -1 + 1e-12) | (need <= t + 1e-6))
+
+
+# ---------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("which", ["plane", "mixed"])
+def test_pmf_sums_to_one(which, plane_sel, mixed_sel):
+    """Where every light can contribute (below the downward-facing rectangles) the pmf over
+    all emitters sums to 1."""
+    sel = plane_sel if which == "plane" else mixed_sel
+    rng = np.random.default_rng(11)
+    p, n = _points(200, rng, z=(0.0, 0.9))
+    pm = pmf_matrix(sel, p, n)
+    assert np.all(pm >= 0)
+    assert np.allclose(pm.sum(1), 1.0, atol=2e-5), pm.sum(1)
+
+
+@pytest.mark.parametrize("which", ["plane", "mixed"])
+def test_pmf_sum_is_the_chance_of_a_light(which, plane_sel, mixed_sel):
+    """Anywhere, the pmf sums to at most 1; the rest is the chance that traversal meets a node
+    whose two children are both bounded by 0 (then no light is chosen, as in pbrt-v4: the
+    lights below can send nothing to x, so the estimator loses nothing).  H0: the fraction of
+    1,000 draws that return a light at x is sum_j p(j | x); binomial z-test over 40 points,
+    |z| < 5 (two-sided 5.7e-7 each)."""
+    sel = plane_sel if which == "plane" else mixed_sel
+    rng = np.random.default_rng(12)
+    p, n = _points(40, rng, z=(0.0, 3.0))
+    total = pmf_matrix(sel, p, n).sum(1)
+    assert np.all(total <= 1 + 2e-5)
+    m = 1000
+    _, pmf, _ = sel.choose(_si(np.repeat(p, m, 0), np.repeat(n, m, 0)),
+                           mi.Float(rng.random(40 * m).astype(np.float32)))
+    hit = (np.array(pmf) > 0).reshape(40, m).mean(1)
+    se = np.sqrt(np.maximum(total * (1 - total), 1e-12) / m)
+    assert np.all(np.abs(hit - total) <= 5 * se + 1e-6), (hit, total)
+
+
+@pytest.mark.parametrize("which", ["plane", "mixed"])
+def test_choose_returns_its_pmf(which, plane_sel, mixed_sel):
+    """The probability traversal reports equals pmf_at of the light it chose, bit for bit."""
+    sel = plane_sel if which == "plane" else mixed_sel
+    rng = np.random.default_rng(5)
+    p, n = _points(1 << 14, rng, z=(0.0, 2.5))
+    si = _si(p, n)
+    em, pmf, _ = sel.choose(si, mi.Float(rng.random(len(p)).astype(np.float32)))
+    again = np.array(sel.pmf_at(si, em))
+    pmf = np.array(pmf)
+    assert np.mean(pmf > 0) > 0.5
+    assert np.array_equal(pmf, again)
+    assert np.all(np.array(dr.reinterpret_array(mi.UInt32, em))[pmf == 0] == 0)
+
+
+def test_zero_power_never_chosen(plane_sel, mixed_sel):
+    for sel in (plane_sel, mixed_sel):
+        dark = [j for j, e in enumerate(sel.emitters) if sel.power[j] == 0]
+        assert len(dark) == 1
+        rng = np.random.default_rng(2)
+        p, n = _points(1 << 16, rng, z=(0.0, 2.5))
+        em, _, _ = sel.choose(_si(p, n), mi.Float(rng.random(len(p)).astype(np.float32)))
+        assert dark[0] not in set(_index_of(sel, em).tolist())
+        assert np.all(pmf_matrix(sel, p[:100], n[:100])[:, dark[0]] == 0)
+
+
+def test_contributing_light_can_be_chosen(plane_sel):
+    """Below the downward-facing rectangles (z < 1.5) every light of nonzero power has
+    p > 0, at any normal; well above them (z > 2.5: the bounding spheres of the rectangles
+    subtend less than the angle to their plane) the rectangles have p = 0 and only the point
+    lights (which shine everywhere) are left."""
+    sel = plane_sel
+    rng = np.random.default_rng(9)
+    lit = sel.power > 0
+    p, n = _points(400, rng, z=(0.0, 1.45), half=6.0)
+    pm = pmf_matrix(sel, p, n)
+    assert np.all(pm[:, lit] > 0)
+    p, n = _points(100, rng, z=(2.5, 3.0), half=4.0)
+    pm = pmf_matrix(sel, p, n)
+    point = np.array([not e.get_shape() for e in sel.emitters])
+    assert np.all(pm[:, ~point] == 0) and np.all(pm[:, point & lit] > 0)
+
+
+@pytest.mark.parametrize("which", ["plane", "mixed"])
+def test_traversal_chi2(which, plane_sel, mixed_sel):
+    """H0: the index of the light choose() draws at a fixed point has the pmf pmf_at (Pearson
+    chi-square over unit cells of the index line, 3 points per scene, family-wise alpha 1e-3
+    over the 6)."""
+    sel = plane_sel if which == "plane" else mixed_sel
+    k = sel.count
+    for i, (pt, nrm) in enumerate([((0.4, -0.7, 0.0), (0, 0, 1)), ((2.5, 2.0, 0.3), (1, 0, 0)),
+                                   ((-1.0, 0.5, 1.2), (0.6, 0.0, -0.8))]):
+        def sample(u, pt=pt, nrm=nrm):
+            m = dr.width(u[0])
+            si = _si(np.tile(pt, (m, 1)), np.tile(nrm, (m, 1)))
+            em, pmf, _ = sel.choose(si, u[0])
+            idx = _index_of(sel, em)
+            return mi.Point2f(mi.Float((idx + 0.5).astype(np.float32)), 0.0)
+
+        def pdf(x, pt=pt, nrm=nrm):
+            j = np.clip(np.floor(np.array(x)).astype(np.int64), 0, k - 1)
+            si = _si(np.tile(pt, (len(j), 1)), np.tile(nrm, (len(j), 1)))
+            em = dr.gather(mi.EmitterPtr, sel.emitters_dr, mi.UInt32(j))
+            return sel.pmf_at(si, em)
+
+        r = chi2_test(sample, pdf, domain=mi.chi2.LineDomain(bounds=[0.0, float(k)]),
+                      sample_dim=1, sample_count=1 << 20, res=k, ires=4, seed=i,
+                      test_count=6)
+        assert r.passed, (which, i, str(r))
+
+
+# ---------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("nee", ["direct_mis", "nee_path", "mis3"])
+def test_unbiased_many_lights(plane, nee):
+    scene, expected = plane
+    d = {"type": nee, "light_selection": "bvh"}
+    if nee != "direct_mis":
+        d["max_depth"] = 2
+    assert_unbiased(scene, expected[1], d, batches=32, spp=8192, sensor=1, max_spp=32768)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("nee", ["direct_mis", "nee_path", "mis3"])
+def test_unbiased_many_lights_every_point(plane, nee):
+    scene, expected = plane
+    d = {"type": nee, "light_selection": "bvh"}
+    if nee != "direct_mis":
+        d["max_depth"] = 2
+    assert_unbiased(scene, expected, d, batches=32, spp=16384, sensor=range(len(expected)),
+                    max_spp=65536)
+
+
+def test_unbiased_mixed_against_power():
+    """Every kind of emitter (and the environment, chosen outside the tree): bvh and power
+    selection render the same expected image (block-wise Welch t, kit default alpha)."""
+    d = mixed_scene()
+    d["sensor"] = {"type": "perspective", "fov": 60,
+                   "to_world": mi.ScalarTransform4f().look_at([0, -6, 4], [0, 0, 0], [0, 0, 1]),
+                   "film": {"type": "hdrfilm", "width": 16, "height": 16,
+                            "rfilter": {"type": "box"}},
+                   "sampler": {"type": "independent"}}
+    assert_unbiased(d, {"type": "nee_path", "max_depth": 3, "light_selection": "power"},
+                    {"type": "nee_path", "max_depth": 3, "light_selection": "bvh"},
+                    batches=16, spp=1024, block=8, max_rel_se=0.02)
+
+
+def test_light_field_scene_renders():
+    """The benchmark's generated scene: bvh beats power on it (the same relMSE test as the
+    benchmark, a small instance), and the image means agree."""
+    scene = mi.load_dict(field.scene_dict(256, res=16, spp=64))
+    imgs = {}
+    for s in ("power", "bvh"):
+        integ = mi.load_dict({"type": "nee_path", "max_depth": 2, "light_selection": s,
+                              "hide_emitters": True})
+        imgs[s] = np.stack([np.array(mi.render(scene, integrator=integ, seed=k))
+                            for k in range(8)])
+    var = {s: v.var(axis=0).mean() for s, v in imgs.items()}
+    assert var["bvh"] < var["power"]
+    m = {s: v.mean() for s, v in imgs.items()}
+    assert m["bvh"] == pytest.approx(m["power"], rel=0.1)
+
+
+def test_bad_mode_rejected():
+    with pytest.raises(Exception, match="light_selection"):
+        mi.load_dict({"type": "nee_path", "light_selection": "bvhh"})
+
+
+# ---------------------------------------------------------------------------------------------
+def test_scalar_variant():
+    integrators.set_variant("scalar_rgb")
+    try:
+        scene = mi.load_dict(mixed_scene())
+        sel = make(scene, "bvh")
+        si = dr.zeros(mi.SurfaceInteraction3f)
+        si.p, si.n = mi.Point3f(0.3, 0.2, 0.5), mi.Vector3f(0, 0, 1)
+        total = sum(float(sel.pmf_at(si, e)) for e in sel.emitters)
+        assert total == pytest.approx(1.0, abs=1e-5)
+        e, p, _ = sel.choose(si, 0.77)
+        assert p > 0 and p == sel.pmf_at(si, e)
+        d, expected = plane_scene(points=[((0.3, -0.2, 1.0), 2.0)], sensors_at=[(0.7, 0.3, 0.0)])
+        assert_unbiased(d, expected, {"type": "direct_mis", "light_selection": "bvh"},
+                        sensor=range(1), batches=8, spp=256, max_rel_se=0.05)
+    finally:
+        integrators.set_variant("llvm_ad_rgb")
+
+
+def test_spectral_variant():
+    if "llvm_ad_spectral" not in mi.variants():
+        pytest.skip("llvm_ad_spectral not built")
+    integrators.set_variant("llvm_ad_spectral")
+    try:
+        scene = mi.load_dict(mixed_scene(dark=False))
+        sel = make(scene, "bvh")
+        rng = np.random.default_rng(1)
+        p, n = _points(20, rng, z=(0.0, 2.0))
+        assert np.allclose(pmf_matrix(sel, p, n).sum(1), 1.0, atol=2e-5)
+        d = mixed_scene(dark=False)
+        d["sensor"] = {"type": "perspective", "film": {"type": "hdrfilm", "width": 8,
+                                                       "height": 8}}
+        img = mi.render(mi.load_dict(d), integrator=mi.load_dict(
+            {"type": "nee_path", "light_selection": "bvh"}), spp=4)
+        assert np.all(np.isfinite(np.array(img)))
+    finally:
+        integrators.set_variant("llvm_ad_rgb")
