@@ -29,14 +29,16 @@ def _f(x, fmt=".3g"):
 def _eff_table(sc, g):
     grp = sc["groups"][g]
     eff = grp["efficiency_at_largest_budget"]
-    lines = ["| method | spp | time (s) | relMSE | FLIP | M samples/s | samples/s vs baseline "
+    lines = ["| method | spp | time (s) | relMSE | FLIP | ΔE00 | M samples/s "
+             "| samples/s vs baseline "
              "| efficiency 1/(relMSE x s) | **vs baseline** | vs baseline, 3 largest budgets "
              "| relMSE without emitter pixels | vs baseline, without emitter pixels |",
-             "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+             "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for l in grp["methods"]:
         e = eff[l]
         lines.append(f"| `{l}` | {e['spp']} | {e['time_s']:.3f} | {_f(e['relmse'])} | "
-                     f"{_f(e['flip'], '.3f')} | {e['samples_per_s'] / 1e6:.2f} | "
+                     f"{_f(e['flip'], '.3f')} | {_f(e.get('de2000'), '.3f')} | "
+                     f"{e['samples_per_s'] / 1e6:.2f} | "
                      f"{_f(e['samples_per_s_vs_baseline'], '.2f')} | {_f(e['efficiency'])} | "
                      f"**{_f(e['efficiency_vs_baseline'], '.2f')}** | "
                      f"{_f(e.get('efficiency_vs_baseline_3_largest'), '.2f')} | "
@@ -143,7 +145,18 @@ def report(summary) -> str:
           "relMSE = mean((x - ref)^2 / (ref^2 + 0.01)); efficiency = 1 / (relMSE x time) at "
           "the largest budget, relative to the group's Mitsuba baseline (`path`, `direct`). "
           "FLIP: " + meta["flip"] + (f" -- unavailable: {meta['flip_unavailable']}"
-                                     if meta.get("flip_unavailable") else "") + ".", ""]
+                                     if meta.get("flip_unavailable") else "") + "."
+          + (" ΔE00 (CIEDE2000, colour-science; about 1 is a just-noticeable difference): "
+             + meta["de2000"] + (f" -- unavailable: {meta['de2000_unavailable']}"
+                                 if meta.get("de2000_unavailable") else "") + "."
+             if meta.get("de2000") else ""), ""]
+    cl = meta.get("cluster")
+    if cl:
+        L += [f"Run on a Dask cluster ({cl['how']}, {cl['slots']} task slots): the "
+              f"references first ({cl['reference_tasks']} tasks), then one task per scene, "
+              "each task the same worker process as a sequential run (one scene per "
+              "process). Errors are those of a sequential run (same seeds); the timings of "
+              "scenes that ran at the same time on one machine share its cores.", ""]
     spreads = sorted((p["time_s_max"] - p["time_s_min"]) / p["time_s"]
                      for sc in scenes.values() for m in sc["methods"].values()
                      for p in m["points"] if p.get("time_s_max") is not None and p["time_s"] > 0)

@@ -2,6 +2,7 @@ r"""Experiments: error against time for every estimator on every scene, with cha
 
     python -m benchmarks run [--quick] [--scenes a b ...] [--methods m1 m2 ...] [--out DIR]
                              [--cache DIR] [--no-cache] [--report-only]
+                             [--workers N | --scheduler ADDRESS]
 
 (needs the ``bench`` extra: ``.venv/bin/pip install -e '.[bench]'`` installs matplotlib and
 flip-evaluator.)  Default output folder: ``out/experiments`` (untracked); the committed snapshot
@@ -70,6 +71,17 @@ over pixels and channels, ``flip`` = mean NVIDIA FLIP (``flip_evaluator``, "LDR"
 previews (linear values clipped to [0, 1], sRGB curve) of the reference and the render; null
 when flip_evaluator is missing or fails (the reason is in ``summary.json``'s ``meta``).
 
+**On a Dask cluster** (``--workers N``: a LocalCluster of N processes on this machine;
+``--scheduler ADDRESS``: an existing cluster whose workers see this repository, the output
+folder and the cache folder at the same paths): the references run first, one task per scene
+(each renders the scene's missing references into the cache, under their run-record keys),
+then one task per scene runs the measurement; each task is the same worker process as in a
+sequential run (``python -m benchmarks run --worker SCENE``, one scene per process, Dr.Jit's
+threads set so that workers x threads = cores), so every render has the seed it has in a
+sequential run and the errors are identical (tested); only the timings differ when scenes
+share a machine's cores.  A task whose worker dies is rerun; ``--no-cache`` uses a temporary
+cache for the run.  ``meta.cluster`` in ``summary.json`` records how it ran.
+
 **Outputs** in the output folder, each written atomically: ``summary.json``, shaped
 ``{"scenes": {scene: {"reference": {...}, "methods": {label: {"integrator": {...}, "points":
 [{"spp", "time_s", "rmse", "relmse", "flip", "time_s_min", "time_s_max"}, ...]}}, ...}},
@@ -90,13 +102,14 @@ import json
 import subprocess
 import sys
 import tempfile
+import time
 from dataclasses import asdict
 from pathlib import Path
 
 from . import provenance, timing
 from .config import (DEFAULT_OUT, DIRECT_DEPTH, GROUPS, PATH_DEPTH, QUICK, FULL, REPO, SCENES,
                      all_labels, all_methods, cache_default, reference_integrator, scene_methods)
-from .metrics import Flip
+from .metrics import Ciede2000, Flip
 from .report import report
 
 PROG = "python -m benchmarks run"
@@ -120,9 +133,24 @@ def parse_args(argv=None):
     ap.add_argument("--no-cache", action="store_true", help="render references afresh, keep none")
     ap.add_argument("--report-only", action="store_true",
                     help="rewrite report.md from OUT/summary.json, render nothing")
+    ap.add_argument("--workers", type=int, default=None, metavar="N",
+                    help="run the references and the scenes as Dask tasks on a LocalCluster "
+                         "of N worker processes on this machine")
+    ap.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                    help="run them on the Dask cluster of this scheduler (its workers must see "
+                         "this repository, --out and --cache at the same paths)")
     ap.add_argument("--worker", default=None, help=argparse.SUPPRESS)
     ap.add_argument("--worker-json", default=None, help=argparse.SUPPRESS)
+    ap.add_argument("--worker-references", action="store_true", help=argparse.SUPPRESS)
+    ap.add_argument("--worker-threads", type=int, default=None, help=argparse.SUPPRESS)
     a = ap.parse_args(argv)
+    if a.workers is not None and a.workers < 1:
+        ap.error(f"--workers = {a.workers} must be a positive integer")
+    if a.workers is not None and a.scheduler is not None:
+        ap.error("--workers starts a cluster on this machine and --scheduler uses an existing "
+                 "one: give one of them")
+    if a.report_only and (a.workers is not None or a.scheduler is not None):
+        ap.error("--report-only renders nothing: --workers and --scheduler do not apply")
     for sc in a.scenes or ():
         if sc not in SCENES:
             ap.error(f"unknown scene {sc!r}; one of {', '.join(SCENES)}")
@@ -155,16 +183,124 @@ def worker_main(args):
     from integrators.app.imageio import write_text
 
     from .experiment import Worker
+    if args.worker_threads:
+        import drjit as dr
+
+        import integrators  # noqa: F401  (LLVM set-up before Dr.Jit starts its threads)
+        dr.set_thread_count(args.worker_threads)
     settings = QUICK if args.quick else FULL
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     cache = None if args.no_cache else Path(args.cache)
     w = Worker(args.worker, settings, _labels(args), cache, out)
+    if args.worker_references:      # the references of this scene only (into the cache)
+        refs = {g: w.reference(g)[2] for g in w.groups}
+        write_text(args.worker_json, json.dumps({"references": refs}, indent=2,
+                                                default=str) + "\n")
+        return
     res = w.run()
     res["variant"] = w.mi.variant()
     res["mitsuba_version"] = w.mi.__version__
     res["drjit_version"] = w.dr.__version__
     write_text(args.worker_json, json.dumps(res, indent=2) + "\n")
+
+
+def worker_command(sc, args, out, cache, references=False) -> list:
+    """The command of the process that runs scene ``sc`` (its references only with
+    ``references``); ``--worker-json FILE`` is added by the caller."""
+    cmd = [sys.executable, "-m", "benchmarks", "run", "--worker", sc, "--out", str(out),
+           "--cache", str(cache)]
+    if args.quick:
+        cmd.append("--quick")
+    if args.no_cache and not references:
+        cmd.append("--no-cache")
+    if args.methods:
+        cmd += ["--methods", *args.methods]
+    if references:
+        cmd.append("--worker-references")
+    return cmd
+
+
+def _die_with_parent():      # pragma: no cover - runs in the child between fork and exec
+    """The scene process ends when the Dask worker that started it does (Linux), and takes
+    SIGINT as usual (the worker ignores it: the client handles Ctrl-C)."""
+    import ctypes
+    import signal
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+    try:
+        ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGTERM)   # PR_SET_PDEATHSIG
+    except (OSError, AttributeError):
+        pass
+
+
+def cluster_task(cmd, cwd, env) -> dict:
+    """A Dask task: run one scene process (``cmd``) with Dr.Jit's threads of this worker,
+    return its status, output and the JSON it wrote (read here: the client may be elsewhere)."""
+    import os
+    import time
+
+    from integrators.app import distributed
+    if distributed._THREADS:
+        cmd = [*cmd, "--worker-threads", str(distributed._THREADS)]
+    fd, js = tempfile.mkstemp(prefix="bench-task-", suffix=".json")
+    os.close(fd)
+    t0 = time.perf_counter()
+    try:
+        r = subprocess.run([*cmd, "--worker-json", js], cwd=cwd, env=env, capture_output=True,
+                           text=True, preexec_fn=_die_with_parent)
+        text = Path(js).read_text() if r.returncode == 0 else None
+    finally:
+        Path(js).unlink(missing_ok=True)
+    return {"returncode": r.returncode, "stdout": r.stdout, "stderr": r.stderr[-4000:],
+            "json": text, "seconds": time.perf_counter() - t0, "threads": distributed._THREADS}
+
+
+def run_on_cluster(scenes, args, out, env):
+    """References, then scenes, as Dask tasks (see the module docstring); returns (results,
+    seconds per scene, meta)."""
+    import contextlib
+
+    from integrators.app.distributed import Cluster, ClusterError
+    try:
+        cluster = Cluster(workers=args.workers, scheduler=args.scheduler)
+    except ClusterError as e:
+        sys.exit(f"error: {e}")
+    tmp_cache = tempfile.TemporaryDirectory(prefix="bench-cache-") if args.no_cache else None
+    cache = tmp_cache.name if tmp_cache else args.cache
+    how = (f"LocalCluster of {args.workers} processes" if args.workers is not None
+           else f"scheduler {args.scheduler}")
+    results, seconds = {}, {}
+    try:
+        with cluster:
+            client = cluster.client
+            print(f"== Dask: {how}, {cluster.slots} task slots (started in "
+                  f"{cluster.started_s:.1f} s)", flush=True)
+            run = f"{time.time_ns():x}"
+            for phase in ("references", "scenes"):
+                futures = {sc: client.submit(
+                    cluster_task, worker_command(sc, args, out, cache, phase == "references"),
+                    str(REPO), env, key=f"bench-{phase}-{sc}-{run}", pure=False)
+                    for sc in scenes}
+                for sc in scenes:
+                    r = futures[sc].result()
+                    sys.stdout.write(r["stdout"])
+                    if r["returncode"] != 0:
+                        sys.stderr.write(r["stderr"])
+                        print(f"== {sc}: {phase} task failed with status {r['returncode']}",
+                              file=sys.stderr)
+                        continue
+                    if phase == "scenes":
+                        results[sc] = json.loads(r["json"])
+                        seconds[sc] = r["seconds"]
+                    print(f"== {sc}: {phase} {r['seconds']:.0f} s ({r['threads']} Dr.Jit "
+                          "threads)", flush=True)
+    finally:
+        if tmp_cache is not None:
+            with contextlib.suppress(OSError):
+                tmp_cache.cleanup()
+    meta = {"how": how, "slots": cluster.slots, "reference_tasks": len(scenes),
+            "scene_tasks": len(scenes), "started_s": cluster.started_s}
+    return results, seconds, meta
 
 
 def main(argv=None):
@@ -205,26 +341,24 @@ def main(argv=None):
     t0 = timing.clock()
     results, per_scene_s = {}, {}
     env = provenance.subprocess_env()
-    with tempfile.TemporaryDirectory(prefix="bench-run-") as tmp:
-        for sc in scenes:
-            js = Path(tmp) / f"{sc}.json"
-            cmd = [sys.executable, "-m", "benchmarks", "run", "--worker", sc,
-                   "--worker-json", str(js), "--out", str(out), "--cache", args.cache]
-            if args.quick:
-                cmd.append("--quick")
-            if args.no_cache:
-                cmd.append("--no-cache")
-            if args.methods:
-                cmd += ["--methods", *args.methods]
-            print(f"== {sc}: one process ({settings.name})", flush=True)
-            ts = timing.clock()
-            r = subprocess.run(cmd, cwd=REPO, env=env)
-            per_scene_s[sc] = timing.clock() - ts
-            if r.returncode != 0:
-                print(f"== {sc}: worker failed with status {r.returncode}", file=sys.stderr)
-                continue
-            results[sc] = json.loads(js.read_text())
-            print(f"== {sc}: {per_scene_s[sc]:.0f} s", flush=True)
+    cluster_meta = None
+    if args.workers is not None or args.scheduler is not None:
+        results, per_scene_s, cluster_meta = run_on_cluster(scenes, args, out, env)
+    else:
+        with tempfile.TemporaryDirectory(prefix="bench-run-") as tmp:
+            for sc in scenes:
+                js = Path(tmp) / f"{sc}.json"
+                cmd = worker_command(sc, args, out, args.cache) + ["--worker-json", str(js)]
+                print(f"== {sc}: one process ({settings.name})", flush=True)
+                ts = timing.clock()
+                r = subprocess.run(cmd, cwd=REPO, env=env)
+                per_scene_s[sc] = timing.clock() - ts
+                if r.returncode != 0:
+                    print(f"== {sc}: worker failed with status {r.returncode}",
+                          file=sys.stderr)
+                    continue
+                results[sc] = json.loads(js.read_text())
+                print(f"== {sc}: {per_scene_s[sc]:.0f} s", flush=True)
     total = timing.clock() - t0
     first = next(iter(results.values()), {})
     flip_reasons = sorted({r.get("flip_unavailable_reason") for r in results.values()
@@ -244,6 +378,11 @@ def main(argv=None):
         "methods": {m.label: m.description for m in all_methods()},
         "flip": Flip.DESCRIPTION,
         "flip_unavailable": flip_reasons or None,
+        "de2000": Ciede2000.DESCRIPTION,
+        "de2000_unavailable": sorted({r.get("de2000_unavailable_reason") for r in
+                                      results.values() if r.get("de2000_unavailable_reason")})
+        or None,
+        "cluster": cluster_meta,
         "seconds_per_scene": per_scene_s, "total_seconds": total,
         "failed_scenes": [s for s in scenes if s not in results],
     }

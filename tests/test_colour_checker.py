@@ -148,3 +148,19 @@ def test_colour_checker_bsdf_path():
     de_max, noise, rel, de = _verdict(res, cc.expected_srgb())
     assert rel < MAX_REL_SE and noise < NOISE_BOUND, (rel, noise)
     assert de_max <= BOUND, (de_max, np.round(de, 3).tolist())
+
+
+def test_experiments_de2000_metric():
+    """benchmarks.metrics' CIEDE2000 (the experiments' colour error): zero for equal images, the
+    colour-science value of a known pair, display-referred (values above 1 clipped)."""
+    from benchmarks.metrics import Ciede2000, errors
+    truth = cc.expected_srgb().reshape(4, 6, 3)
+    low = truth * 0.95
+    m = Ciede2000()
+    assert m.reason is None
+    assert m(truth, truth) == 0.0
+    want = float(np.mean(cc.delta_e2000(np.clip(truth, 0, 1), np.clip(low, 0, 1))))
+    assert m(truth, low) == pytest.approx(want, rel=1e-9) and 0.8 < want < 1.2
+    assert m(np.full((2, 2, 3), 5.0), np.full((2, 2, 3), 1.0)) == 0.0      # both clip to white
+    e = errors(low, truth, None, None, None, m)
+    assert e["de2000"] == pytest.approx(want, rel=1e-9) and e["finite"]

@@ -244,3 +244,35 @@ def test_cli_ctrl_c_stops_the_tasks_and_writes_what_they_rendered(tmp_path):
     plan = D.plan_spp(32, 18, 400000, 0, 2)
     for f, l in rec.ranges():             # each range a prefix of a planned task's seeds
         assert any(f == pf and l <= pf + len(pp) - 1 for pf, pp in plan), (f, l)
+
+
+# ---------------------------------------------------------------------------------------------
+@pytest.mark.slow
+def test_experiments_on_two_workers_match_a_sequential_run(tmp_path):
+    """``python -m benchmarks run --workers 2``: references, then scenes, as Dask tasks; every
+    error of every point equals the sequential run's, with the same reference keys.  Equal to
+    float32 rounding, not bit for bit: Mitsuba's film adds the splats of a Gaussian filter with
+    parallel atomic adds, so two sequential runs with 2 Dr.Jit threads already differ in the
+    last bits (bit-identical with 1 thread, as each Dask worker has here)."""
+    import json
+
+    def bench(out, *extra):
+        r = subprocess.run([sys.executable, "-m", "benchmarks", "run", "--quick", "--scenes",
+                            "furnace", "cornell_box", "--methods", "bsdf_path", "--out",
+                            str(out), "--cache", str(out / "cache"), *extra], cwd=ROOT,
+                           capture_output=True, text=True, timeout=1200)
+        assert r.returncode == 0, r.stderr[-3000:]
+        return json.loads((out / "summary.json").read_text())
+    seq = bench(tmp_path / "seq")
+    dist = bench(tmp_path / "dist", "--workers", "2")
+    assert dist["meta"]["cluster"]["slots"] == 2 and seq["meta"]["cluster"] is None
+    assert set(seq["scenes"]) == set(dist["scenes"]) == {"furnace", "cornell_box"}
+    for sc, a in seq["scenes"].items():
+        b = dist["scenes"][sc]
+        assert {g: r["key"] for g, r in a["reference"].items()} == \
+            {g: r["key"] for g, r in b["reference"].items()}
+        for label, m in a["methods"].items():
+            for p, q in zip(m["points"], b["methods"][label]["points"]):
+                assert p["spp"] == q["spp"]
+                for k in ("rmse", "relmse", "flip", "de2000"):
+                    assert q[k] == pytest.approx(p[k], rel=1e-4), (sc, label, p["spp"], k)
