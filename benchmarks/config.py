@@ -65,7 +65,13 @@ PATH_METHODS = (
            "light selection"),
     Method("bsdf_path", "path", {"type": "bsdf_path", "max_depth": PATH_DEPTH},
            "our `bsdf_path`, BSDF sampling only (no light sampling)"),
+    Method("bdpt", "path", {"type": "bdpt", "max_depth": PATH_DEPTH},
+           "our `bdpt`, bidirectional path tracing: every (s, t) strategy, light tracing onto "
+           "the film, power heuristic by ratio recurrences (area, point and spot lights only)"),
 )
+#: methods that render only some scenes (bdpt refuses environment emitters)
+ONLY_ON = {"bdpt": ("cornell_box", "many_lights", "small_light", "sharp_glossy", "specular_box",
+                    "caustic", "ajar_door", "glass_shade")}
 HEURISTIC_NOTES = {
     "balance": "balance heuristic",
     "power": "power heuristic (beta 2)",
@@ -140,6 +146,11 @@ SCENES = {
     "sharp_glossy": Scene(_res_defines, (0.5, 0.78), STABILITY_LABELS, 1),
     "furnace": Scene(_res_defines, (0.8, 0.5), (), 8),
     "specular_box": Scene(_res_defines, (0.33, 0.72), (), 4),
+    # issue 17 (bdpt): light reaches what the camera sees through glass or a gap; path's
+    # references need more samples there (caustics)
+    "caustic": Scene(_res_defines, (0.5, 0.72), (), 8),
+    "ajar_door": Scene(_res_defines, (0.45, 0.8), (), 4),
+    "glass_shade": Scene(_res_defines, (0.3, 0.3), (), 8),
 }
 
 # the stability study's stated bound: MIS (1 light + 1 BSDF sample) is at least 1/STABILITY_FACTOR
@@ -161,7 +172,8 @@ def scene_file(name: str) -> Path:
 
 
 def scene_methods(scene: str) -> list:
-    return list(PATH_METHODS) + [DIRECT_METHODS[k] for k in SCENES[scene].direct_methods]
+    return [m for m in PATH_METHODS if scene in ONLY_ON.get(m.label, (scene,))] + \
+        [DIRECT_METHODS[k] for k in SCENES[scene].direct_methods]
 
 
 def all_methods() -> list:

@@ -1,0 +1,56 @@
+"""Mutants of bidirectional path tracing (``bdpt``; see tests/mutation.py for the format).
+
+Each plants one plausible bug in the estimator or its MIS recurrences; tests/test_bdpt.py must
+fail for every one (``python tests/mutation.py --only NAME``)."""
+
+_SUB = "integrators/sampling/subpath.py"
+_BDPT = "integrators/plugins/bdpt.py"
+_T = ["test_bdpt.py"]
+
+MUTANTS = [
+    # the first light vertex's ratio without the emitted cosine: MIS weights no longer sum to 1
+    ("bdpt-first-hit-dvcm-without-cos0", _SUB,
+     "dvcm_first = dr.select(area, mis(safe_div(p_nee * cos0, pdf_e)),",
+     "dvcm_first = dr.select(area, mis(safe_div(p_nee, pdf_e)),", _T),
+    # the recurrence forgets the reverse density at a smooth scattering
+    ("bdpt-recurrence-without-reverse-pdf", _SUB,
+     "mis(safe_div(cos_out, bs.pdf)) * (dvc * mis(p_rev) + dvcm))\n            dvcm = dr.select(spec, 0.0, mis(safe_div(1.0, bs.pdf)))\n            beta *= w * shading_correction(si, wo)",
+     "mis(safe_div(cos_out, bs.pdf)) * (dvc + dvcm))\n            dvcm = dr.select(spec, 0.0, mis(safe_div(1.0, bs.pdf)))\n            beta *= w * shading_correction(si, wo)",
+     _T),
+    # light tracing without its shadow ray
+    ("bdpt-light-tracing-no-visibility", _BDPT,
+     "            active &= ~scene.ray_test(si.spawn_ray_to(ds.p), active)\n",
+     "", _T),
+    # a connection without the 1/d^2 of the geometry term
+    ("bdpt-connection-without-inverse-square", _BDPT,
+     "beta_y * (w * inv_d2)", "beta_y * w", _T),
+    # next-event estimation weighted against the BSDF hit only (the light-subpath strategies
+    # that also produce the path are forgotten): weights sum to more than one
+    ("bdpt-nee-weight-without-light-subpaths", _BDPT,
+     "w1 = finite_weight(w_light + 1.0 + w_cam)", "w1 = finite_weight(w_light + 1.0)", _T),
+    # a delta scattering on the camera subpath keeps its ratio (strategies that cannot connect
+    # through a delta lobe get weight)
+    ("bdpt-camera-delta-vertex-keeps-dvcm", _BDPT,
+     "            dvcm = dr.select(spec, 0.0, mis(safe_div(1.0, bs.pdf)))\n            beta *= w\n",
+     "            dvcm = mis(safe_div(1.0, bs.pdf))\n            beta *= w\n", _T),
+    # the light subpath scattered in radiance mode (glass then divides by eta^2 twice)
+    ("bdpt-light-walk-radiance-mode", _SUB,
+     "        ctx = mi.BSDFContext(mi.TransportMode.Importance)\n        emitter, ray, beta",
+     "        ctx = mi.BSDFContext()\n        emitter, ray, beta", _T),
+    # light-tracing splats not divided by the pixel's filter mass (wrong with a gaussian filter)
+    ("bdpt-splats-without-filter-mass", _BDPT,
+     "out = data + dr.select((c < 3) & (f > 0), add * w / dr.select(f > 0, f, 1.0), 0.0)",
+     "out = data + dr.select((c < 3) & (f > 0), add * w, 0.0)", _T),
+    # a delta light's direction density left out of next-event estimation's ratio
+    ("bdpt-delta-light-direction-pdf", _BDPT,
+     "dir_pdf_l * cos_z * safe_div(1.0, dr.square(ds_l.dist))",
+     "cos_z * safe_div(1.0, dr.square(ds_l.dist))", _T),
+    # connections one segment short of max_depth are skipped
+    ("bdpt-connection-depth-off-by-one", _BDPT,
+     "ok = act & (depth_y + depth + 1 <= max_depth)",
+     "ok = act & (depth_y + depth + 2 <= max_depth)", _T),
+    # the camera's density for the light-tracing ratio taken per pixel instead of film-wide
+    ("bdpt-camera-pdf-per-pixel", _BDPT,
+     "dvcm = dr.select(first, mis(safe_div(1.0, p_film)), dvcm)",
+     "dvcm = dr.select(first, mis(safe_div(1.0, 256.0 * p_film)), dvcm)", _T),
+]
