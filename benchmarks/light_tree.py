@@ -17,6 +17,7 @@ Measured per scene, side by side in one process:
 
 * **set-up**: wall time of the first ``mi.render`` with a fresh integrator (1 spp): light powers,
   tree build, tracing and compiling (or loading from Dr.Jit's kernel cache) included; path first;
+* **selection set-up**: ``light_selection.make(scene, mode)`` alone (powers, bounds, tree);
 * **per-call overhead**: wall time of a later 1-spp render (Mitsuba's per-call work over the
   emitters, which at thousands of lights dwarfs the kernel);
 * **time per sample**: the execution time of the render's kernels from Dr.Jit's kernel history
@@ -103,6 +104,13 @@ def measure(scene_name: str, n_lights, res: int, spp: int, repeats: int, ref_spp
         integs[name] = mi.load_dict(d)
         _, setup[name], _ = render(integs[name], 1, 0)
         _, overhead[name], _ = render(integs[name], 1, 1)
+    from integrators.sampling.light_selection import make
+    select_s = {}
+    for name in methods:
+        if name != "path":
+            t = time.perf_counter()
+            make(scene, name)
+            select_s[name] = time.perf_counter() - t
     ref, _, _ = render(integs["bvh"], ref_spp, 12345)
     ref_sq = float((ref ** 2).sum())
     rel, tps, means = {m: [] for m in methods}, {m: [] for m in methods}, {m: [] for m in methods}
@@ -118,6 +126,7 @@ def measure(scene_name: str, n_lights, res: int, spp: int, repeats: int, ref_spp
     for name in methods:
         out["methods"][name] = {
             "setup_s": setup[name], "overhead_s": overhead[name],
+            "selection_s": select_s.get(name),
             "relmse_1spp": statistics.mean(rel[name]),
             "time_per_sample_us": statistics.median(tps[name]) * 1e6,
             "mean_ratio": statistics.mean(means[name]) / max(float(ref.mean()), 1e-30)}
@@ -126,6 +135,24 @@ def measure(scene_name: str, n_lights, res: int, spp: int, repeats: int, ref_spp
         m["efficiency_vs_path"] = ((base["relmse_1spp"] * base["time_per_sample_us"])
                                    / max(m["relmse_1spp"] * m["time_per_sample_us"], 1e-30))
     return out
+
+
+def _build_time(n: int, repeats: int = 3) -> float:
+    """Best of ``repeats`` builds of the tree over n synthetic lights (random boxes, normals,
+    powers over three decades)."""
+    import numpy as np
+    from integrators.sampling.light_tree import build
+    rng = np.random.default_rng(0)
+    c = rng.uniform(-50, 50, (n, 3))
+    w = rng.normal(size=(n, 3))
+    w /= np.linalg.norm(w, axis=1)[:, None]
+    best = float("inf")
+    for _ in range(repeats):
+        t = time.perf_counter()
+        build(c - 0.1, c + 0.1, w, np.ones(n), np.zeros(n), np.zeros(n, bool),
+              10 ** rng.uniform(0, 3, n))
+        best = min(best, time.perf_counter() - t)
+    return best
 
 
 def _fmt(x, f="{:.3g}"):
@@ -137,8 +164,9 @@ def table(results) -> str:
     head = ("| scene | lights | relMSE at 1 spp: " + " / ".join(cols) + " | time per sample (us): "
             + " / ".join(cols) + " | efficiency vs path: " + " / ".join(cols[1:])
             + " | set-up, first render (s): " + " / ".join(cols) + " | per-call overhead (s): "
-            + " / ".join(cols) + " | bvh mean / reference |")
-    lines = [head, "|" + "---|" * 9]
+            + " / ".join(cols) + " | selection set-up (s): " + " / ".join(cols[1:])
+            + " | bvh mean / reference |")
+    lines = [head, "|" + "---|" * 10]
     for r in results:
         m = r["methods"]
 
@@ -151,6 +179,7 @@ def table(results) -> str:
             + " / ".join(get("efficiency_vs_path", c, "{:.1f}x") for c in cols[1:]) + " | "
             + " / ".join(get("setup_s", c, "{:.1f}") for c in cols) + " | "
             + " / ".join(get("overhead_s", c, "{:.1f}") for c in cols) + " | "
+            + " / ".join(get("selection_s", c, "{:.2f}") for c in cols[1:]) + " | "
             + f"{m['bvh']['mean_ratio']:.4f} |")
     fields = [r for r in results if r["scene"] == "light_field"]
     if fields:
@@ -158,8 +187,10 @@ def table(results) -> str:
         b = [r["methods"]["bvh"] for r in (lo, hi)]
         lines += ["", f"bvh time per sample at {hi['lights']:,} / at {lo['lights']:,} lights: "
                   f"{b[1]['time_per_sample_us'] / b[0]['time_per_sample_us']:.2f}x; "
-                  f"bvh set-up / path first render at {hi['lights']:,} lights: "
-                  f"{b[1]['setup_s'] / hi['methods']['path']['setup_s']:.2f}x"]
+                  f"bvh first render / path first render at {hi['lights']:,} lights: "
+                  f"{b[1]['setup_s'] / hi['methods']['path']['setup_s']:.2f}x; bvh selection "
+                  f"set-up (powers, bounds, build) / path first render: "
+                  f"{b[1]['selection_s'] / hi['methods']['path']['setup_s']:.2f}x"]
     few = [r for r in results if r["scene"] != "light_field"]
     for r in few:
         m = r["methods"]
@@ -219,6 +250,8 @@ def main(argv=None) -> int:
                     a.adaptive_max)
         print("RESULT " + json.dumps(r))
         return 0
+    build_s = _build_time(100_000)
+    print(f"tree build over 100,000 lights (synthetic): {build_s:.2f} s", flush=True)
     jobs = [("light_field", str(n)) for n in a.lights]
     if a.few:
         jobs += [("veach_mis", "-"), ("cornell_box", "-")]
@@ -238,7 +271,8 @@ def main(argv=None) -> int:
     a.out.mkdir(parents=True, exist_ok=True)
     (a.out / "light_tree.json").write_text(json.dumps(results, indent=1))
     md = ("# Light tree benchmark\n\n`python -m benchmarks.light_tree " + " ".join(
-        sys.argv[1:] if argv is None else argv) + "`\n\n" + table(results))
+        sys.argv[1:] if argv is None else argv) + "`\n\n" + table(results)
+        + f"\ntree build over 100,000 lights (synthetic, numpy): {build_s:.2f} s\n")
     (a.out / "light_tree.md").write_text(md)
     chart(a.out / "light_tree_cost.png", results)
     print(md)

@@ -391,3 +391,29 @@ def test_spectral_variant():
         assert np.all(np.isfinite(np.array(img)))
     finally:
         integrators.set_variant("llvm_ad_rgb")
+
+
+def test_selection_quality_light_field():
+    """On 1,024 sphere lights (scenes/tools/make_light_field.py) the tree's choice is close to
+    the ideal one (p proportional to each light's unshadowed irradiance, exact for a sphere
+    above the horizon: pi L (r/d)^2 cos): the second moment sum_j f_j^2 / p_j / (sum_j f_j)^2
+    (1 for the ideal, the variance factor of the light choice) at 100 fixed floor points.
+    Deterministic (fixed points, no sampling): measured median 1.46 for bvh, 27.9 for power."""
+    n = 1024
+    scene = mi.load_dict(field.scene_dict(n, res=4, spp=1))
+    sel = make(scene, "bvh")
+    centre = np.array([np.array(e.get_shape().bbox().center(), float).ravel()
+                       for e in sel.emitters])
+    radius = np.array([0.5 * float(np.array(e.get_shape().bbox().extents(), float).ravel()[0])
+                       for e in sel.emitters])
+    le = np.pi * sel.power / (4 * np.pi * np.pi * radius ** 2)   # power = pi L 4 pi r^2
+    rng = np.random.default_rng(0)
+    p = np.stack([rng.uniform(-15, 15, 100), rng.uniform(-14, 18, 100), np.zeros(100)], 1)
+    nrm = np.tile([0.0, 0.0, 1.0], (100, 1))
+    d = centre[None] - p[:, None]
+    d2 = (d ** 2).sum(-1)
+    f = np.pi * le[None] * radius[None] ** 2 / d2 * d[..., 2] / np.sqrt(d2)
+    second = lambda pm: (f ** 2 / np.maximum(pm, 1e-30)).sum(1) / f.sum(1) ** 2   # noqa: E731
+    tree = np.median(second(pmf_matrix(sel, p, nrm)))
+    power = np.median(second(np.broadcast_to(sel.pmf_np, f.shape)))
+    assert tree < 2.0 and power > 10 * tree, (tree, power)

@@ -1,0 +1,44 @@
+"""Mutants of the light tree (light_selection=bvh; see tests/mutation.py for the format)."""
+
+T = "integrators/sampling/light_tree.py"
+TESTS = ["test_light_tree.py"]
+
+MUTANTS = [
+    # the pmf walk reads the wrong bit of the trail: pmf_at no longer what traversal did
+    ("tree-pmf-wrong-trail-bit", T,
+     "right = ((word >> (k & 31)) & 1) == 1",
+     "right = ((word >> ((k + 1) & 31)) & 1) == 1", TESTS),
+    # traversal goes left half the time whatever the importances, reporting the ratio: biased
+    ("tree-traverse-ignores-importance", T,
+     "left = u < p0",
+     "left = u < 0.5", TESTS),
+    # the uniform number is not rescaled after a decision: later choices correlated with it
+    ("tree-u-not-rescaled", T,
+     "u = dr.select(left, u / dr.select(left, p0, 1.0),\n"
+     "                          (u - p0) / dr.select(left, 1.0, 1.0 - p0))",
+     "u = dr.select(left, u, u)", TESTS),
+    # the emission-cone test rules out lights that can still shine on x: biased low
+    ("tree-cone-test-too-tight", T,
+     'imp = dr.select(cos_p > g["cos_e"] - COS_E_SLACK, imp, 0.0)',
+     'imp = dr.select(cos_p > g["cos_e"] + 0.3, imp, 0.0)', TESTS),
+    # a parent's cone is its first child's only (not conservative)
+    ("tree-cone-union-dropped", T,
+     "tree.w[nd], tree.cos_o[nd] = cone_union(tree.w[a], tree.cos_o[a], tree.w[b2], tree.cos_o[b2])",
+     "tree.w[nd], tree.cos_o[nd] = tree.w[a], tree.cos_o[a]", TESTS),
+    # a parent's box is its first child's only (not conservative)
+    ("tree-box-union-dropped", T,
+     "tree.lo[nd] = np.minimum(tree.lo[a], tree.lo[b2])",
+     "tree.lo[nd] = tree.lo[a]", TESTS),
+    # the probability of the tree (1 - p_inf) left out of the reported pmf of a tree light
+    ("tree-pmf-without-tree-probability", T,
+     "pmf = dr.select(use_inf, p_inf / max(self.n_inf, 1), (1.0 - p_inf) * pmf_t)",
+     "pmf = dr.select(use_inf, p_inf / max(self.n_inf, 1), pmf_t)", TESTS),
+    # the importance forgets the distance: still unbiased, but no better than power
+    ("tree-importance-without-distance", T,
+     "imp = dr.abs(phi) * dr.maximum(cos_p, RECEIVER_FLOOR) * inv_d2",
+     "imp = dr.abs(phi) * dr.maximum(cos_p, RECEIVER_FLOOR)", TESTS),
+    # the vectorised power kernel assigns samples to the wrong emitters
+    ("power-samples-mixed-between-emitters", "integrators/sampling/light_selection.py",
+     "mi.UInt32(np.repeat(idx, k).astype(np.uint32))",
+     "mi.UInt32(np.tile(idx, k).astype(np.uint32))", ["test_light_selection.py", *TESTS]),
+]
