@@ -58,14 +58,16 @@ class RegionGrid:
             return dr.gather(mi.Float, self.decisions, cell, active)
         return float(self.decisions[int(cell)]) if active else self.default
 
-    def add(self, cell, values, active):
+    def add(self, cell, values, active, mode=None):
         """Add ``values`` (one Float per statistic, or a dict {statistic index: Float} for a
-        few of them) to the cell's statistics."""
+        few of them) to the cell's statistics.  ``mode``: the scatter's ``dr.ReduceMode``
+        (default ``Local``; ``Direct`` is much faster on the LLVM backend when the lanes'
+        cells are mostly distinct, e.g. a batch of records)."""
         items = values.items() if isinstance(values, dict) else enumerate(values)
         for k, v in items:
             if is_jit():   # Local: reduce within a SIMD packet first (many lanes, few cells)
                 dr.scatter_add(self.stats, v, cell * self.stats_per_cell + k, active,
-                               mode=dr.ReduceMode.Local)
+                               mode=dr.ReduceMode.Local if mode is None else mode)
             elif active:
                 self.stats[int(cell) * self.stats_per_cell + k] += float(v)
 

@@ -12,7 +12,7 @@ The efficiency-optimal n (Rath, Grittmann, Herholz, Weier, Slusallek 2022, "EARS
 Efficiency-Aware Russian Roulette and Splitting"; Vorba & Krivanek 2016, ADRRS): the work
 minimises (sum over pixels of the relative variance) x (total cost).  One copy of the subpath
 from x adds w^2 a(x) / n to the relative variance of its pixel, w = lum(beta)/I_p the path's
-throughput relative to the pixel's value I_p, and n c(x) to the cost, c(x) the cost of one copy.
+throughput relative to the pixel's value I_p (sqrt(I_p^2 + 0.01), the relMSE's denominator), and n c(x) to the cost, c(x) the cost of one copy.
 Setting the derivative of V C to zero gives
 
     n(x) = w sqrt(a(x) C / (V c(x)))
@@ -28,7 +28,8 @@ of copies, accumulated from the vertices of the first ``LEARN_DEPTH`` bounces.  
 a *record*; every contribution a lane adds to its camera sample is also added (its luminance,
 and the rays it cost) to the records of all its ancestors, so when the camera samples of a batch
 are finished, each record holds its copy's estimate beta_copy L_r and the copy's cost.  Per
-pixel: the running mean of the pixel estimate (blurred 3x3, the I_p of the rule) and, from the
+pixel: the running mean of the pixel estimate (the I_p of the rule: a filtered value would spread
+a light's value over its neighbours, whose variance then looks small) and, from the
 last pass, its second moment and cost.  Between passes (:meth:`EARS.learn`) each region gets
 two factors sqrt(M C / (V c)) and sqrt(Var C / (V c)); statistics then decay by ``DECAY``
 so that what is learned follows the changing policy (the cost and the variance behind a vertex
@@ -71,6 +72,8 @@ from .learning import RegionGrid
 LEARN_DEPTH = 6
 #: copies a region needs before its learned factors replace the throughput rule
 MIN_VISITS = 32
+#: resolutions of the fine and the coarse grid (cells along the scene's longest side)
+FINE, COARSE = 32, 8
 #: weight of older statistics after each pass (the policy behind a vertex changes)
 DECAY = 0.5
 #: cost of a shadow ray relative to a continuation (closest-hit) ray and its vertex
@@ -80,8 +83,9 @@ THROUGHPUT_CAP = 0.95
 #: atomic scatter-adds (the default may replicate the target per thread, with its size baked
 #: into the kernel: a recompilation whenever a wavefront's width changes)
 DIRECT = dr.ReduceMode.Direct
-#: the pixel value I_p is floored at this fraction of the image's mean (dark pixels)
-PIXEL_FLOOR = 0.05
+#: relative errors are (x - I_p)^2 / (I_p^2 + PIXEL_EPS), the relMSE of the benchmarks
+#: (benchmarks.metrics.EPS): without it the darkest pixels' relative variance decides everything
+PIXEL_EPS = 0.01
 
 
 def seed_mix(*xs: int) -> int:
@@ -97,13 +101,6 @@ def seed_mix(*xs: int) -> int:
     return h
 
 
-def _blur3(img: np.ndarray) -> np.ndarray:
-    """3x3 box filter with edge clamping (the pixel value I_p of the rule)."""
-    p = np.pad(img, 1, mode="edge")
-    h, w = img.shape
-    return sum(p[i:i + h, j:j + w] for i in range(3) for j in range(3)) / 9.0
-
-
 class EARS:
     """The learned state of one scene: per-region statistics and factors, per-pixel values.
 
@@ -112,9 +109,13 @@ class EARS:
     replaces the learned n at every vertex (tests: random or maximal factors)."""
 
     def __init__(self, scene, rr_min: float, split_max: int, rr_depth: int):
-        self.grid = RegionGrid(scene, stats=4)        # sum L_r^2, sum L_r, copies, sum cost
+        # a fine and a coarse grid (the fine cell's factors where it has enough copies, else
+        # the coarse cell's): statistics: sum L_r^2, sum L_r, copies, sum cost
+        self.grid = RegionGrid(scene, stats=4, resolution=FINE)
+        self.coarse = RegionGrid(scene, stats=4, resolution=COARSE, size=1 << 12)
         self.rr_min, self.split_max, self.rr_depth = float(rr_min), int(split_max), int(rr_depth)
         self.f_var = mi.Float(np.full(self.grid.size, -1.0, np.float32))
+        self.f_var_coarse = mi.Float(np.full(self.coarse.size, -1.0, np.float32))
         self.shape = None
         self.passes = 0
         self.learned = False
@@ -134,18 +135,21 @@ class EARS:
             self.learned = False
         self.pass_s1 = dr.zeros(mi.Float, self.shape[0] * self.shape[1])
         self.pass_s2 = dr.zeros(mi.Float, self.shape[0] * self.shape[1])
-        self.pass_cost = dr.zeros(mi.Float, 1)
+        self.pass_cost = 0.0
 
     # ---- in the kernel -------------------------------------------------------------------
     def factor(self, si, beta, eta, depth, pixel, sampler, active):
         """n(x) at the vertex ``si`` reached with throughput ``beta`` (before clamping to the
         lane cap), and its cell.  Zero where ``active`` is false."""
-        cell = self.grid.cell_of(si)
+        cell = (self.grid.cell_of(si), self.coarse.cell_of(si))
         if self.forced is not None:
             n = dr.clip(self.forced(sampler, active), self.rr_min, self.split_max)
         else:
-            f_m = self.grid.lookup(cell, active)
-            f_v = dr.gather(mi.Float, self.f_var, cell, active)
+            f_m = self.grid.lookup(cell[0], active)
+            f_v = dr.gather(mi.Float, self.f_var, cell[0], active)
+            fine = f_m >= 0
+            f_m = dr.select(fine, f_m, self.coarse.lookup(cell[1], active))
+            f_v = dr.select(fine, f_v, dr.gather(mi.Float, self.f_var_coarse, cell[1], active))
             w = luminance(beta) * dr.gather(mi.Float, self.inv_pixel, pixel, active)
             n_m = w * f_m
             n = dr.select(n_m < 1.0, n_m, dr.maximum(w * f_v, 1.0))
@@ -163,34 +167,47 @@ class EARS:
         self.passes += 1
         s1 = np.array(self.pass_s1, np.float64)
         s2 = np.array(self.pass_s2, np.float64)
-        cost = float(self.pass_cost[0]) / max(s1.size * spp, 1)
+        cost = self.pass_cost / max(s1.size * spp, 1)
         self.pix_s1 += s1
         self.pix_n += spp
         if self.forced is not None or not self.learning:
             return
         mean = self.pix_s1 / np.maximum(self.pix_n, 1)
-        img = _blur3(mean.reshape(self.shape))
-        floor = PIXEL_FLOOR * max(float(img.mean()), 0.0) + 1e-12
-        ip = np.maximum(img.ravel(), floor)
+        ip2 = np.maximum(mean, 0.0) ** 2 + PIXEL_EPS      # the relMSE's denominator
         var = np.maximum(s2 / spp - mean ** 2, 0.0)
-        v_rel = float(np.mean(var / ip ** 2))
-        st = self.grid.statistics()
-        cnt = st[:, 2]
-        ok = (cnt >= MIN_VISITS) & (v_rel > 0) & (cost > 0)
-        c = np.where(ok, st[:, 3] / np.maximum(cnt, 1e-30), 1.0)
-        m2 = np.where(ok, st[:, 0] / np.maximum(cnt, 1e-30), 0.0)
-        mu = np.where(ok, st[:, 1] / np.maximum(cnt, 1e-30), 0.0)
-        v = np.maximum(m2 - mu ** 2, 0.0)
+        v_rel = float(np.mean(var / ip2))
         k = cost / v_rel if v_rel > 0 else 0.0
-        c = np.maximum(c, 1e-6)
+        ok_any = False
+        for grid, attr in ((self.grid, "f_var"), (self.coarse, "f_var_coarse")):
+            f_m, f_v, ok = self.factors(grid.statistics(), k)
+            grid.set_table(f_m)
+            setattr(self, attr, mi.Float(f_v.astype(np.float32)))
+            grid.stats = grid.stats * DECAY
+            ok_any |= bool(ok.any())
+        self.inv_pixel = mi.Float((1.0 / np.sqrt(ip2)).astype(np.float32))
+        self.learned = ok_any
+        self.v_rel, self.cost = v_rel, cost
+
+    @staticmethod
+    def factors(st: np.ndarray, k: float):
+        """Per cell sqrt(M k / c) and sqrt(Var k / c) (-1 where the cell has fewer than
+        MIN_VISITS copies), k = C / V; and where they are defined."""
+        cnt = st[:, 2]
+        ok = (cnt >= MIN_VISITS) & (k > 0)
+        inv = 1.0 / np.maximum(cnt, 1e-30)
+        c = np.maximum(np.where(ok, st[:, 3] * inv, 1.0), 1e-6)
+        m2 = np.where(ok, st[:, 0] * inv, 0.0)
+        mu = np.where(ok, st[:, 1] * inv, 0.0)
+        v = np.maximum(m2 - mu ** 2, 0.0)
         f_m = np.where(ok, np.sqrt(m2 * k / c), -1.0)
         f_v = np.where(ok, np.sqrt(v * k / c), -1.0)
-        self.grid.set_table(f_m)
-        self.f_var = mi.Float(f_v.astype(np.float32))
-        self.inv_pixel = mi.Float((1.0 / ip).astype(np.float32))
-        self.learned = bool(ok.any())
-        self.grid.stats = self.grid.stats * DECAY
-        self.v_rel, self.cost = v_rel, cost
+        return f_m, f_v, ok
+
+
+def copy_weight(n):
+    """Weight of each copy of a path continued with factor n (floor(n + u) copies): 1/n, so that
+    E[copies x weight] = 1 for any n > 0."""
+    return safe_div(1.0, n)
 
 
 def random_factors(lo: float, hi: float):
@@ -304,7 +321,7 @@ class Wavefront:
         self.stats["camera_rays"] += n_cam
         recs = []
         self._next = None
-        self._k_sum = dr.zeros(mi.Float, 1)
+        self._cont = 0
         state = self.replicate(dict(si=si, beta=beta, eta=eta, depth=depth, sid=sid,
                                     pixel=pixel, hist=[]), n, u, cell, alive, recs, learn)
         bounce = 0
@@ -322,24 +339,26 @@ class Wavefront:
                     dr.scatter_reduce(dr.ReduceOp.Add, r["R"], k, hh, mode=DIRECT)
             u = sampler.next_1d()
             n, cell = ears.factor(si, beta, eta, depth, state["pixel"], sampler, alive)
-            dr.scatter_reduce(dr.ReduceOp.Add, self._k_sum, (k - 1.0) / SHADOW_COST,
-                              mi.UInt32(0), mode=dr.ReduceMode.Local)
             # one kernel: what the next wavefront gathers, and the scattered contributions
-            dr.eval(self._next, beta, eta, depth, alive, n, u, cell, self.L, cost, self._k_sum,
+            dr.eval(self._next, beta, eta, depth, alive, n, u, cell, self.L, cost,
                     *[(r["S"], r["R"]) for r in recs])
             self.stats["continuation_rays"] += state["width"]
+            self._cont += state["width"]
             state = self.replicate(dict(si=si, beta=beta, eta=eta, depth=depth,
                                         sid=state["sid"], pixel=state["pixel"], hist=hist),
                                    n, u, cell, alive, recs, learn and bounce < LEARN_DEPTH)
         self.stats["bounces"] = max(self.stats["bounces"], bounce)
-        self.stats["shadow_rays"] += int(round(float(self._k_sum[0])))
+        # the cost of a bounce is 1 + SHADOW_COST per shadow ray: count them from it
+        work = float(dr.sum(cost)[0])
+        self.stats["shadow_rays"] += int(round((work - self._cont) / SHADOW_COST))
         if learn:
             for r in recs:
                 L_r = safe_div(r["S"], r["blum"])
-                ears.grid.add(r["cell"], [L_r * L_r, L_r, mi.Float(1.0), r["R"]], r["blum"] > 0)
-        dr.scatter_reduce(dr.ReduceOp.Add, ears.pass_cost, 1.0 + cost, mi.UInt32(0),
-                          mode=dr.ReduceMode.Local)
-        dr.eval(ears.grid.stats, ears.pass_cost)
+                vals = [L_r * L_r, L_r, mi.Float(1.0), r["R"]]
+                ears.grid.add(r["cell"][0], vals, r["blum"] > 0, mode=DIRECT)
+                ears.coarse.add(r["cell"][1], vals, r["blum"] > 0, mode=DIRECT)
+        ears.pass_cost += work + n_cam
+        dr.eval(ears.grid.stats, ears.coarse.stats)
         return self.L, valid
 
     def vertex(self, scene, sel, sampler, st, limit):
@@ -397,7 +416,7 @@ class Wavefront:
         idx = dr.gather(mi.UInt32, parents, rank)
         dr.eval(idx)
         self.stats["max_lanes"] = max(self.stats["max_lanes"], total)
-        beta = dr.gather(mi.Spectrum, st["beta"] * safe_div(1.0, ns), idx)
+        beta = dr.gather(mi.Spectrum, st["beta"] * copy_weight(ns), idx)
         out = dict(width=total, beta=beta,
                    eta=dr.gather(mi.Float, st["eta"], idx),
                    depth=dr.gather(mi.UInt32, st["depth"], idx),
@@ -413,7 +432,7 @@ class Wavefront:
         self._next = None
         if record:
             recs.append(dict(S=dr.zeros(mi.Float, total), R=dr.zeros(mi.Float, total),
-                             cell=dr.gather(mi.UInt32, cell, idx),
+                             cell=tuple(dr.gather(mi.UInt32, c, idx) for c in cell),
                              blum=luminance(beta)))
             out["hist"].append(dr.arange(mi.UInt32, total))
         # the gathers run inside the next bounce's kernel (nothing is evaluated here but idx)

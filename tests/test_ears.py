@@ -1,0 +1,179 @@
+"""nee_path rr=adaptive (EARS roulette and splitting with path replication, issue 16).
+
+Unbiasedness checks (H0: the estimator is unbiased), through the public kit:
+
+* closed emitting box (rho 0.5, le 1; L = le sum rho^k truncated at max_depth) with the learned
+  factors replaced by random ones, n uniform in [0.1, 8] independently at every vertex: Student t
+  on 32 batch means, Sidak over RGB, alpha = DEFAULT_ALPHA (1.5e-5), relative s.e. < 0.5 %;
+* the same box with the learned factors (learning between the batches: each batch is unbiased
+  given the ones before it, whatever was learned);
+* Cornell box against Mitsuba's ``path`` (max_depth 8): Welch t on 4x4 blocks with both sides'
+  variances, Sidak over blocks and channels, alpha = DEFAULT_ALPHA; 16 batches of 256 spp, the
+  integrator learning across them.
+
+Memory: with splitting forced to ``split_max`` at every vertex the live lanes never pass
+``max_lanes`` and the peak memory of a render does not grow with spp (fresh processes, peak RSS).
+Negative controls: a copy weighted 1/ceil(n) instead of 1/n, and roulette without its 1/n, are
+rejected by the same closed-box check.
+"""
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import mitsuba as mi
+import numpy as np
+import pytest
+
+import integrators  # noqa: F401
+from integrators.sampling import splitting
+from integrators.testing import assert_unbiased, check_unbiased, closed_box
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def ears(**kw):
+    return mi.load_dict({"type": "nee_path", "rr": "adaptive", **kw})
+
+
+def random_ears(lo=0.1, hi=8.0, **kw):
+    it = ears(**kw)
+    it.forced_factor = splitting.random_factors(lo, hi)
+    return it
+
+
+@pytest.mark.parametrize("max_depth", [2, 4])
+def test_closed_box_random_factors_every_vertex(max_depth):
+    # 256 spp per batch: each camera sample already averages many copies (4 on average per
+    # vertex), so the relative s.e. is below 0.5 % at a fraction of the usual budget
+    assert_unbiased(*closed_box(max_depth=max_depth, spp=256), random_ears(max_depth=max_depth),
+                    spp=256)
+
+
+def test_closed_box_random_factors_lane_cap():
+    """Random factors with a lane cap far below what the splits ask for: the factors of a bounce
+    are scaled to fit, and the estimate stays unbiased."""
+    it = random_ears(max_depth=5, max_lanes=1024)
+    assert_unbiased(*closed_box(max_depth=5, spp=256), it, spp=256, max_spp=1024)
+    assert it.stats["max_lanes"] <= 1024
+
+
+def test_closed_box_learned():
+    it = ears(rr_depth=1)
+    assert_unbiased(*closed_box(spp=512), it, spp=512, max_spp=2048)
+    assert it.ears.learned, "nothing was learned over 32 passes"
+
+
+@pytest.mark.slow
+def test_closed_box_learned_rho_09():
+    assert_unbiased(*closed_box(rho=0.9, spp=1024), ears(), spp=1024, max_spp=16384)
+
+
+@pytest.fixture(scope="module")
+def cornell():
+    return mi.load_file(str(ROOT / "scenes" / "cornell_box.xml"), res="16")
+
+
+@pytest.mark.slow
+def test_same_image_as_mitsuba_path(cornell):
+    it = ears(max_depth=8)
+    assert_unbiased(cornell, {"type": "path", "max_depth": 8}, it, spp=512, batches=16)
+    assert it.ears.learned
+
+
+def test_negative_control_weight_of_ceil(monkeypatch):
+    """Each copy weighted 1/ceil(n) instead of 1/n (roulette then uncompensated, splits
+    under-weighted): rejected by the same check."""
+    import drjit as dr
+    monkeypatch.setattr(splitting, "copy_weight", lambda n: 1.0 / dr.maximum(dr.ceil(n), 1.0))
+    r = check_unbiased(*closed_box(max_depth=3, spp=256), random_ears(max_depth=3), spp=256)
+    assert not r.passed, r
+
+
+def test_lanes_bounded_with_maximal_splitting():
+    scene = mi.load_file(str(ROOT / "scenes" / "cornell_box.xml"), res="16")
+    it = ears(max_depth=10, split_max=8, max_lanes=4096)
+    it.forced_factor = splitting.fixed_factor(8.0)
+    img = np.array(mi.render(scene, integrator=it, spp=16, seed=3))
+    assert np.all(np.isfinite(img)) and img.mean() > 0
+    assert it.stats["max_lanes"] <= 4096
+    assert it.stats["continuation_rays"] > 16 * 16 * 16 * 8     # it did split
+
+
+MEMORY_CHILD = r"""
+import json, resource, sys
+import numpy as np, mitsuba as mi, integrators
+from integrators.sampling import splitting
+scene = mi.load_file(sys.argv[1], res="16")
+it = mi.load_dict({"type": "nee_path", "rr": "adaptive", "max_depth": 12, "split_max": 8,
+                   "max_lanes": 1 << 14})
+it.forced_factor = splitting.fixed_factor(8.0)
+img = np.array(mi.render(scene, integrator=it, spp=int(sys.argv[2]), seed=1))
+print(json.dumps({"peak_kib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss,
+                  "lanes": it.stats["max_lanes"], "finite": bool(np.isfinite(img).all())}))
+"""
+
+
+def _peak(spp):
+    r = subprocess.run([sys.executable, "-c", MEMORY_CHILD,
+                        str(ROOT / "scenes" / "cornell_box.xml"), str(spp)],
+                       capture_output=True, text=True, cwd=ROOT, timeout=600)
+    assert r.returncode == 0, r.stderr[-2000:]
+    return json.loads(r.stdout.strip().splitlines()[-1])
+
+
+def test_memory_flat_in_spp_with_maximal_splitting():
+    """Splitting forced to split_max = 8 at every vertex (8^12 copies per camera sample if
+    nothing bounded them): one mi.render call at 4 and at 64 spp, each in a fresh process.  Peak
+    RSS may differ by the image's own arrays and allocator noise, not by the samples: bound
+    +40 MiB for 16x the samples."""
+    small, large = _peak(4), _peak(64)
+    assert small["finite"] and large["finite"]
+    assert small["lanes"] <= 1 << 14 and large["lanes"] <= 1 << 14
+    assert large["peak_kib"] - small["peak_kib"] < 40 * 1024, (small, large)
+
+
+@pytest.mark.parametrize("kw, needle", [
+    ({"split_max": 0}, "parameter 'split_max' = 0 is invalid; allowed: an integer >= 1"),
+    ({"rr_min": 2.0}, "parameter 'rr_min' = 2.0 is invalid; allowed: a number >= 0.001"),
+    ({"max_lanes": 10}, "parameter 'max_lanes' = 10 is invalid"),
+    ({"split": 4}, "parameter 'split' = 4 is invalid with rr=adaptive; allowed: 1")])
+def test_bad_parameters_one_line(kw, needle):
+    # Mitsuba wraps a plugin's exception; the plugin's own message is one line
+    with pytest.raises(Exception) as e:
+        ears(**kw)
+    assert any(("nee_path: " + needle) in line
+               for line in str(e.value).splitlines()), str(e.value)[-500:]
+
+
+def adaptive_scene(**defines):
+    text = (ROOT / "scenes" / "cornell_box.xml").read_text().replace(
+        '<integrator type="nee_path">',
+        '<integrator type="nee_path"><string name="rr" value="adaptive"/>')
+    return mi.load_string(text, **defines)
+
+
+def test_state_lives_across_passes_of_progressive_render():
+    """``render --spp`` / ``--time`` (integrators.app.progressive) in passes: the scene's
+    integrator learns over the passes and the result is finite and close to path's."""
+    from integrators.app import progressive
+    scene = adaptive_scene(res="32")
+    acc = progressive.render(scene, spp=64, seed=0)
+    assert acc.spp == 64 and acc.passes > 1 and np.isfinite(acc.mean()).all()
+    it = scene.integrator()
+    assert it.ears.passes == acc.passes and it.ears.learned
+    acc = progressive.render(scene, time_budget=1.0, seed=1000)
+    assert acc.passes >= 1 and np.isfinite(acc.mean()).all()
+    ref = np.array(mi.render(scene, integrator=mi.load_dict({"type": "path"}), spp=512))
+    assert abs(acc.mean().mean() / ref.mean() - 1) < 0.1
+
+
+def test_stats_count_rays():
+    scene = adaptive_scene(res="8")
+    it = scene.integrator()
+    mi.render(scene, spp=4)
+    st = it.stats
+    assert st["camera_samples"] == 8 * 8 * 4 == st["camera_rays"]
+    assert st["continuation_rays"] > 0 and 0 < st["shadow_rays"] <= st["continuation_rays"]
