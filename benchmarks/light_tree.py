@@ -18,6 +18,8 @@ Measured per scene, side by side in one process:
 * **set-up**: wall time of the first ``mi.render`` with a fresh integrator (1 spp): light powers,
   tree build, tracing and compiling (or loading from Dr.Jit's kernel cache) included; path first;
 * **selection set-up**: ``light_selection.make(scene, mode)`` alone (powers, bounds, tree);
+* **one choice alone**: kernel time of ``choose`` at 2^18 random points of the floor plane (the
+  selection's own cost, without Mitsuba's emitter calls), per choice;
 * **per-call overhead**: wall time of a later 1-spp render (Mitsuba's per-call work over the
   emitters, which at thousands of lights dwarfs the kernel);
 * **time per sample**: the execution time of the render's kernels from Dr.Jit's kernel history
@@ -105,12 +107,32 @@ def measure(scene_name: str, n_lights, res: int, spp: int, repeats: int, ref_spp
         _, setup[name], _ = render(integs[name], 1, 0)
         _, overhead[name], _ = render(integs[name], 1, 1)
     from integrators.sampling.light_selection import make
-    select_s = {}
+    select_s, choose_ns = {}, {}
+    lanes = 1 << 18
+    rng = np.random.default_rng(0)
+    bb = scene.bbox()
+    lo_b, hi_b = np.array(bb.min, float).ravel(), np.array(bb.max, float).ravel()
+    pts = [mi.Float(rng.uniform(lo_b[k], hi_b[k], lanes).astype(np.float32)) for k in range(2)]
     for name in methods:
-        if name != "path":
-            t = time.perf_counter()
-            make(scene, name)
-            select_s[name] = time.perf_counter() - t
+        if name == "path":
+            continue
+        t = time.perf_counter()
+        sel = make(scene, name)
+        select_s[name] = time.perf_counter() - t
+        # the selection alone: one choice at each of 2^18 random points of the floor plane
+        kern = []
+        for r in range(repeats + 1):
+            si = dr.zeros(mi.SurfaceInteraction3f, lanes)
+            si.p = mi.Point3f(pts[0], pts[1], float(lo_b[2]))
+            si.n = mi.Vector3f(0, 0, 1)
+            u = mi.Float(rng.random(lanes).astype(np.float32))
+            dr.eval(si, u)
+            dr.kernel_history()
+            _, pmf, _ = sel.choose(si, u)
+            dr.eval(pmf)
+            dr.sync_thread()
+            kern.append(_kernel_seconds(dr) / lanes * 1e9)
+        choose_ns[name] = statistics.median(kern[1:])
     ref, _, _ = render(integs["bvh"], ref_spp, 12345)
     ref_sq = float((ref ** 2).sum())
     rel, tps, means = {m: [] for m in methods}, {m: [] for m in methods}, {m: [] for m in methods}
@@ -126,7 +148,7 @@ def measure(scene_name: str, n_lights, res: int, spp: int, repeats: int, ref_spp
     for name in methods:
         out["methods"][name] = {
             "setup_s": setup[name], "overhead_s": overhead[name],
-            "selection_s": select_s.get(name),
+            "selection_s": select_s.get(name), "choose_ns": choose_ns.get(name),
             "relmse_1spp": statistics.mean(rel[name]),
             "time_per_sample_us": statistics.median(tps[name]) * 1e6,
             "mean_ratio": statistics.mean(means[name]) / max(float(ref.mean()), 1e-30)}
@@ -165,13 +187,13 @@ def table(results) -> str:
             + " / ".join(cols) + " | efficiency vs path: " + " / ".join(cols[1:])
             + " | set-up, first render (s): " + " / ".join(cols) + " | per-call overhead (s): "
             + " / ".join(cols) + " | selection set-up (s): " + " / ".join(cols[1:])
-            + " | bvh mean / reference |")
-    lines = [head, "|" + "---|" * 10]
+            + " | one choice alone (ns): " + " / ".join(cols[1:]) + " | bvh mean / reference |")
+    lines = [head, "|" + "---|" * 11]
     for r in results:
         m = r["methods"]
 
         def get(k, name, f="{:.3g}"):
-            return _fmt(m[name][k] if name in m else None, f)
+            return _fmt(m[name].get(k) if name in m else None, f)
         lines.append(
             f"| {r['scene']} | {r['lights']:,} | "
             + " / ".join(get("relmse_1spp", c) for c in cols) + " | "
@@ -180,13 +202,16 @@ def table(results) -> str:
             + " / ".join(get("setup_s", c, "{:.1f}") for c in cols) + " | "
             + " / ".join(get("overhead_s", c, "{:.1f}") for c in cols) + " | "
             + " / ".join(get("selection_s", c, "{:.2f}") for c in cols[1:]) + " | "
+            + " / ".join(get("choose_ns", c, "{:.3g}") for c in cols[1:]) + " | "
             + f"{m['bvh']['mean_ratio']:.4f} |")
     fields = [r for r in results if r["scene"] == "light_field"]
     if fields:
         lo, hi = min(fields, key=lambda r: r["lights"]), max(fields, key=lambda r: r["lights"])
         b = [r["methods"]["bvh"] for r in (lo, hi)]
         lines += ["", f"bvh time per sample at {hi['lights']:,} / at {lo['lights']:,} lights: "
-                  f"{b[1]['time_per_sample_us'] / b[0]['time_per_sample_us']:.2f}x; "
+                  f"{b[1]['time_per_sample_us'] / b[0]['time_per_sample_us']:.2f}x (path: "
+                  f"{hi['methods']['path']['time_per_sample_us'] / lo['methods']['path']['time_per_sample_us']:.2f}x); "
+                  f"one bvh choice alone: {b[1]['choose_ns'] / b[0]['choose_ns']:.2f}x; "
                   f"bvh first render / path first render at {hi['lights']:,} lights: "
                   f"{b[1]['setup_s'] / hi['methods']['path']['setup_s']:.2f}x; bvh selection "
                   f"set-up (powers, bounds, build) / path first render: "

@@ -4,10 +4,11 @@ T = "integrators/sampling/light_tree.py"
 TESTS = ["test_light_tree.py"]
 
 MUTANTS = [
-    # the pmf walk reads the wrong bit of the trail: pmf_at no longer what traversal did
-    ("tree-pmf-wrong-trail-bit", T,
-     "right = ((word >> (k & 31)) & 1) == 1",
-     "right = ((word >> ((k + 1) & 31)) & 1) == 1", TESTS),
+    # the pmf walk follows the trail but takes the sibling's share: pmf_at no longer what
+    # traversal did
+    ("tree-pmf-sibling-share", T,
+     "chosen = dr.select(right, i1, i0)",
+     "chosen = dr.select(right, i0, i1)", TESTS),
     # traversal goes left half the time whatever the importances, reporting the ratio: biased
     ("tree-traverse-ignores-importance", T,
      "left = u < p0",
@@ -31,8 +32,8 @@ MUTANTS = [
      "tree.lo[nd] = tree.lo[a]", TESTS),
     # the probability of the tree (1 - p_inf) left out of the reported pmf of a tree light
     ("tree-pmf-without-tree-probability", T,
-     "pmf = dr.select(use_inf, p_inf / max(self.n_inf, 1), (1.0 - p_inf) * pmf_t)",
-     "pmf = dr.select(use_inf, p_inf / max(self.n_inf, 1), pmf_t)", TESTS),
+     "pmf = dr.select(use_inf, p_j, (1.0 - p_inf) * pmf_t)",
+     "pmf = dr.select(use_inf, p_j, pmf_t)", TESTS),
     # the importance forgets the distance: still unbiased, but no better than power
     ("tree-importance-without-distance", T,
      "imp = dr.abs(phi) * dr.maximum(cos_p, RECEIVER_FLOOR) * inv_d2",

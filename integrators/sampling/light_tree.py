@@ -47,7 +47,9 @@ the same two importances per level in the same order, so it equals the probabili
 * point, spot and projector lights are point leaves (box = their position, full sphere of
   directions: the spot's cone is not used, which is conservative);
 * infinite emitters (``constant``, ``envmap``, ``directional``) are chosen **outside the tree**:
-  as in pbrt-v4, with probability n_inf / (n_inf + 1) one of the n_inf infinite emitters of
+  with probability p_inf = (their power) / (power of all emitters), the same share as
+  ``light_selection=power`` gives them (pbrt-v4 gives them n_inf / (n_inf + 1), which spends half
+  of the light samples of ``veach_mis`` on its faint environment), one of them by power, of
   nonzero power uniformly, otherwise the tree.
 
 Emitters of zero power are not in the tree and are never chosen (they add nothing).  If every
@@ -645,7 +647,15 @@ class LightTreeSelection(LightSelection):
         tree_idx = np.nonzero(kind == TREE)[0]
         inf_idx = np.nonzero(kind == INFINITE)[0]
         self.n_tree, self.n_inf = len(tree_idx), len(inf_idx)
-        self.p_inf = self.n_inf / (self.n_inf + (1 if self.n_tree else 0)) if self.n_inf else 0.0
+        # the infinite emitters as a group: their share of the power; inside the group by power
+        total = power[tree_idx].sum() + power[inf_idx].sum()
+        self.p_inf = float(power[inf_idx].sum() / total) if self.n_inf else 0.0
+        if self.n_inf and not self.n_tree:
+            self.p_inf = 1.0
+        inf_share = power[inf_idx] / max(power[inf_idx].sum(), 1e-300)
+        self.inf_pmf_np = self.p_inf * inf_share      # p(j) of every infinite emitter
+        if self.n_inf:
+            self.inf_distr = mi.DiscreteDistribution(inf_share.astype(np.float32))
         self.tree = None
         if self.n_tree:
             t = tree_idx
@@ -666,9 +676,11 @@ class LightTreeSelection(LightSelection):
             self.kind_by_id, self.slot_by_id = mi.UInt32(kind_by_id), mi.UInt32(slot_by_id)
             self.tree_emitter = mi.UInt32(tree_idx.astype(np.uint32))
             self.inf_emitter = mi.UInt32(inf_idx.astype(np.uint32))
+            self.inf_pmf = mi.Float(self.inf_pmf_np.astype(np.float32))
         else:
             self.by_ptr = {e.ptr: (int(kind[j]), int(slot[j])) for j, e in enumerate(self.emitters)}
             self.tree_emitter, self.inf_emitter = tree_idx, inf_idx
+            self.inf_pmf = self.inf_pmf_np
 
     def _measure_power(self, scene):
         power, self._first_normal = emitter_powers(scene, self.emitters, normals=True)
@@ -692,7 +704,7 @@ class LightTreeSelection(LightSelection):
         u = mi.Float(sample1)
         if self.n_inf:
             use_inf = u < p_inf
-            j = dr.minimum(mi.UInt32(u / p_inf * self.n_inf), self.n_inf - 1)
+            j = self.inf_distr.sample(dr.minimum(u / p_inf, ONE_MINUS_EPS), active & use_inf)
             u = dr.minimum((u - p_inf) / (1.0 - p_inf), ONE_MINUS_EPS) if p_inf < 1 else u
         else:
             use_inf, j = mi.Bool(False), mi.UInt32(0)
@@ -708,7 +720,9 @@ class LightTreeSelection(LightSelection):
             e_inf = int(self.inf_emitter[j]) if self.n_inf else 0
             e_tree = int(self.tree_emitter[leaf]) if self.n_tree else 0
         idx = dr.select(use_inf, e_inf, e_tree)
-        pmf = dr.select(use_inf, p_inf / max(self.n_inf, 1), (1.0 - p_inf) * pmf_t)
+        p_j = (dr.gather(mi.Float, self.inf_pmf, j, use_inf) if is_jit() else
+               (float(self.inf_pmf[j]) if self.n_inf else 0.0)) if self.n_inf else 0.0
+        pmf = dr.select(use_inf, p_j, (1.0 - p_inf) * pmf_t)
         pmf = dr.select(active, pmf, 0.0)
         ok = active & (pmf > 0)
         if not is_jit() and not ok:
@@ -717,7 +731,7 @@ class LightTreeSelection(LightSelection):
 
     def pmf_at(self, si, emitter, active=True, norm=None):
         """p(j | si) of ``emitter``: the root-to-leaf walk of its bit trail for a tree light,
-        p_inf / n_inf for an infinite one, 0 for an emitter never chosen."""
+        its share of p_inf for an infinite one, 0 for an emitter never chosen."""
         if self.count == 0:
             return mi.Float(0.0)
         if is_jit():
@@ -729,7 +743,13 @@ class LightTreeSelection(LightSelection):
             if emitter is None or not active:
                 return 0.0
             kind, slot = self.by_ptr.get(emitter.ptr, (NONE, 0))
-        pmf = dr.select(kind == INFINITE, self.p_inf / max(self.n_inf, 1), 0.0)
+        if not self.n_inf:
+            pmf = mi.Float(0.0)
+        elif is_jit():
+            pmf = dr.select(kind == INFINITE,
+                            dr.gather(mi.Float, self.inf_pmf, slot, active & (kind == INFINITE)), 0.0)
+        else:
+            pmf = float(self.inf_pmf[slot]) if kind == INFINITE else 0.0
         if self.tree is not None:
             in_tree = active & (kind == TREE)
             if is_jit() or in_tree:
