@@ -105,10 +105,13 @@ class PSSMLT(IntegratorTemplate):
               doc="Small-step size: Kelemen's s2 (largest offset per coordinate; s1 = s2/16)."),
         Param("chains", "int", 16384, min=1, max=MAX_CHAINS,
               doc="Markov chains run in parallel (one Dr.Jit lane each)."),
-        Param("bootstrap", "int", 100000, min=1, max=MAX_BOOTSTRAP,
+        Param("bootstrap", "int", 131072, min=1, max=MAX_BOOTSTRAP,
               doc="Independent paths that estimate the normalisation b and seed the chains."),
         Param("estimator", "choice", "path", choices=("path", "bdpt"),
               doc="Path estimator driven by the chains (bdpt: not yet available)."),
+        Param("separate_emission", "bool", True,
+              doc="Render the emission seen directly by camera rays apart (spp camera rays "
+                  "per pixel), not by the chains, which lights in view would draw to them."),
         Param("continue_chains", "bool", True,
               doc="A render whose seed follows the previous one continues its chains "
                   "(render passes); false: every render starts from a new bootstrap."),
@@ -128,6 +131,8 @@ class PSSMLT(IntegratorTemplate):
         self.lights = light_selection.SelectionCache("power")
         self.vertex = VertexEstimator(self.heur, 1, 1, roulette.Roulette("throughput", 5))
         self.dims = ps.dims_for(self.max_depth)
+        # a finite max_depth within the stored vertices never draws past the stored coordinates
+        self.extra = not (0 <= self.max_depth <= ps.MAX_STORED_VERTICES + 1)
         self.state = None
 
     # ---- the estimator: one path per lane from a primary sampler --------------------------
@@ -145,6 +150,8 @@ class PSSMLT(IntegratorTemplate):
         ray = mi.Ray3f(ray)
         act = mi.Bool(active)
         si, L = self.camera_hit(scene, ray, act)
+        if self.separate_emission:   # rendered apart (seen_emission)
+            L = mi.Spectrum(0.0)
         act = act & si.is_valid() & (1 < depth_limit(self.max_depth))
         L += self.vertex.path(scene, sampler, sel, ray, si, act, self.max_depth)
         rgb = _rgb(ray_w * L, ray.wavelengths, active)
@@ -153,6 +160,27 @@ class PSSMLT(IntegratorTemplate):
         px = dr.minimum(mi.UInt32(dr.floor(pos.x * w)), w - 1)
         py = dr.minimum(mi.UInt32(dr.floor(pos.y * h)), h - 1)
         return py * w + px, rgb, importance(rgb)
+
+    def seen_emission(self, sensor, scene, spp: int, seed: int, w: int, h: int):
+        """The emission seen directly by camera rays, by ``spp`` camera rays per pixel (box
+        filter): a flat RGB image, the part of the image the chains leave out with
+        ``separate_emission``."""
+        n = w * h * spp
+        lane = dr.arange(mi.UInt32, n)
+        key = dr.opaque(mi.UInt32, _key(seed, 0x85EBCA6B))
+        r = [ps.uniform(lane * 6 + i, key) for i in range(6)]
+        pixel = lane // spp
+        py = pixel // w
+        px = pixel - py * w
+        pos = mi.Point2f((mi.Float(px) + r[0]) / w, (mi.Float(py) + r[1]) / h)
+        time = sensor.shutter_open() + r[5] * sensor.shutter_open_time()
+        ray, ray_w = sensor.sample_ray(time, r[2], pos, mi.Point2f(r[3], r[4]))
+        _, L = self.camera_hit(scene, mi.Ray3f(ray), mi.Bool(True))
+        rgb = _rgb(ray_w * L, ray.wavelengths, True)
+        rgb = dr.select(dr.all(dr.isfinite(rgb)), rgb, 0.0) / spp
+        image = dr.zeros(mi.Float, w * h * 3)
+        splat(image, pixel, rgb, dr.any(rgb != 0))
+        return image
 
     def sample(self, scene, sampler, ray, medium=None, active=True):
         """The estimator the chains drive, with an ordinary sampler (one independent path)."""
@@ -183,7 +211,8 @@ class PSSMLT(IntegratorTemplate):
         if not (self.continue_chains and st is not None and st.scene is scene and
                 st.sensor is sensor and st.size == (w, h) and seed == st.seed_last + 1):
             self.state = None
-            st = start(contribution, self.dims, self.chains, self.bootstrap, seed)
+            st = start(contribution, self.dims, self.chains, self.bootstrap, seed,
+                       extra=self.extra)
             st.scene, st.sensor, st.size, st.seed_first = scene, sensor, (w, h), seed
         st.seed_last = seed
         self.state = st
@@ -192,7 +221,10 @@ class PSSMLT(IntegratorTemplate):
         # splats are f/I (w h / N); b, refined by this pass's large steps, multiplies at the end
         run(contribution, st, total, image, dr.opaque(mi.Float, w * h / total),
             self.large_step, self.sigma)
-        return self.develop_image(film, image * st.b, w, h)
+        image = image * st.b
+        if self.separate_emission:
+            image += self.seen_emission(sensor, scene, int(spp), seed, w, h)
+        return self.develop_image(film, image, w, h)
 
     @staticmethod
     def develop_image(film, image, w, h):
@@ -235,27 +267,38 @@ def _key(seed: int, counter: int):
     return int(k[0]) if dr.width(k) else int(k)
 
 
-def start(evaluate, dims: int, chains: int, bootstrap: int, seed: int, resample: bool = True):
+def start(evaluate, dims: int, chains: int, bootstrap: int, seed: int, resample: bool = True,
+          extra: bool = True):
     """Bootstrap and seed the chains: ``bootstrap`` independent primary vectors (generated
     from their index and a key from ``seed``) evaluated by ``evaluate(sampler) -> (pixel, rgb,
-    I)``; b = mean I; the chains' vectors resampled from them in proportion to I (uniformly
-    with ``resample`` False, or when every I is zero).  Returns a :class:`ChainState`."""
+    I)``; b = mean I; the chains' vectors resampled from them in proportion to I (systematic
+    resampling; with ``resample`` False, or when every I is zero, chain c takes path c).  The
+    chains then start in the bootstrap's estimate of the target, so there is no start-up bias
+    in expectation (a rare path of large I found by the bootstrap starts several chains,
+    which splat a blob until they move apart: Metropolis's start-up noise).  Returns a
+    :class:`ChainState`."""
     key = _key(seed, 0x9E3779B9)
     k = dr.opaque(mi.UInt32, key)
-    pix_b, rgb_b, lum_b = evaluate(ps.primary_sampler(None, dims, dr.arange(mi.UInt32, bootstrap), k))
+    pix_b, rgb_b, lum_b = evaluate(ps.primary_sampler(None, dims, dr.arange(mi.UInt32, bootstrap),
+                                                      k, extra=extra))
     dr.eval(pix_b, rgb_b, lum_b)
     lum_sum = float(np.array(lum_b, dtype=np.float64).sum())
     if resample and lum_sum > 0:
-        dist = mi.DiscreteDistribution(lum_b)
-        pick = dist.sample(ps.uniform(dr.arange(mi.UInt32, chains), ps.stream(k, ps.STREAM_SEED)))
+        # systematic resampling: chain c takes the path at the quantile (c + xi) / chains of
+        # the bootstrap's distribution of I (one xi): unbiased, each path floor or ceil of
+        # its expected number of chains
+        xi = ps.uniform(mi.UInt32(0), ps.stream(k, ps.STREAM_SEED))
+        q = (mi.Float(dr.arange(mi.UInt32, chains)) + xi) / chains
+        pick = mi.DiscreteDistribution(lum_b).sample(dr.minimum(q, 1.0 - 2.0 ** -24))
     else:
-        pick = mi.UInt32(np.minimum((np.arange(chains) * bootstrap) // chains, bootstrap - 1))
+        pick = dr.arange(mi.UInt32, chains) % bootstrap
     flat = dr.arange(mi.UInt32, chains * dims)
     row = flat // dims
     u = ps.uniform(dr.gather(mi.UInt32, pick, row) * dims + (flat - row * dims), k)
     st = ChainState(key, dims, u, dr.gather(mi.Color3f, rgb_b, pick),
                     dr.gather(mi.Float, lum_b, pick), dr.gather(mi.UInt32, pix_b, pick),
                     lum_sum, bootstrap)
+    st.extra = extra
     dr.eval(st.u, st.rgb, st.lum, st.pix)
     return st
 
@@ -268,9 +311,10 @@ def step(evaluate, st: "ChainState", ids, image, scale, large_step: float, sigma
     are independent uniform samples: their I refine the estimate of b."""
     k = dr.opaque(mi.UInt32, _key(st.key, st.steps + 1))
     st.steps += 1
-    prop, large = ps.mutate(st.u, ids, st.dims, k, large_step, sigma)
     m = dr.width(ids)
-    pix, rgb, lum = evaluate(ps.primary_sampler(prop, st.dims, dr.arange(mi.UInt32, m), k))
+    large = ps.large_steps(ids, k, large_step)
+    pix, rgb, lum = evaluate(ps.primary_sampler(st.u, st.dims, ids, k, large, sigma, st.extra))
+    dr.eval(pix, rgb, lum, large)            # the paths: one kernel
     lum_c = dr.gather(mi.Float, st.lum, ids)
     rgb_c = dr.gather(mi.Color3f, st.rgb, ids)
     pix_c = dr.gather(mi.UInt32, st.pix, ids)
@@ -287,12 +331,14 @@ def step(evaluate, st: "ChainState", ids, image, scale, large_step: float, sigma
     flat = dr.arange(mi.UInt32, m * st.dims)
     row = flat // st.dims
     chain = dr.gather(mi.UInt32, ids, row)
-    dr.scatter(st.u, prop, chain * st.dims + (flat - row * st.dims),
-               dr.gather(mi.Bool, accept, row))
+    index = chain * st.dims + (flat - row * st.dims)
+    prop = ps.propose(dr.gather(mi.Float, st.u, index), index, k,
+                      dr.gather(mi.Bool, large, row), sigma)
+    dr.scatter(st.u, prop, index, dr.gather(mi.Bool, accept, row))
+    dr.eval(st.u, st.lum, st.rgb, st.pix, image, a)
     acc_sum = dr.sum(a)
     n_large = dr.count(large)
     large_sum = dr.sum(dr.select(large, lum, 0.0))
-    dr.eval(st.u, st.lum, st.rgb, st.pix, image, acc_sum, n_large, large_sum)
     st.accepted += _scalar(acc_sum)
     st.large += int(_scalar(n_large))
     st.lum_sum += _scalar(large_sum)

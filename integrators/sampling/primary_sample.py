@@ -13,10 +13,11 @@ densities are trivial:
 
 This module holds what the chains need, vectorised over chains as Dr.Jit lanes:
 
-* :func:`uniform`: counter-based random numbers (TEA of an index and a key), so a primary vector
+* :func:`uniform`: counter-based random numbers (a hash of an index and a key), so a primary vector
   is a function of (its index, the key): bootstrap vectors are regenerated from their index
   instead of being stored (as pbrt-v4's ``MLTIntegrator`` does with its RNG streams);
-* :func:`mutate`: the proposal for every chain, flat arrays of chains x D coordinates;
+* :func:`propose`, :func:`large_steps`: the proposal of every coordinate of every chain, a
+  function of the current value, the coordinate's index and the step's key;
 * :class:`PrimarySampler`: a duck-typed sampler (``next_1d``, ``next_2d``) that reads the
   coordinates of each lane's vector in order, so that an unchanged path estimator
   (:meth:`integrators.sampling.vertex.VertexEstimator.path`) is driven by it.  It is a
@@ -40,8 +41,6 @@ CAMERA_DIMS = 6
 VERTEX_DIMS = 7
 #: vertices whose coordinates are stored (and mutated); deeper vertices use fresh numbers
 MAX_STORED_VERTICES = 16
-#: TEA rounds of the counter-based generator
-TEA_ROUNDS = 8
 #: ratio s2 / s1 of Kelemen's perturbation (1/64 and 1/1024 in the paper)
 KELEMEN_RATIO = 16.0
 
@@ -59,9 +58,19 @@ def dims_for(max_depth: int) -> int:
     return CAMERA_DIMS + VERTEX_DIMS * vertices
 
 
+def hash32(x):
+    """The PCG hash of a UInt32 (Jarzynski and Olano 2020, "Hash functions for GPU rendering":
+    one step of a PCG generator and its output permutation)."""
+    state = mi.UInt32(x) * 747796405 + 2891336453
+    word = ((state >> ((state >> 28) + 4)) ^ state) * 277803737
+    return (word >> 22) ^ word
+
+
 def uniform(index, key):
-    """Uniform numbers in [0, 1): TEA of (``index``, ``key``), both UInt32 (per lane)."""
-    return mi.sample_tea_float32(mi.UInt32(index), mi.UInt32(key), TEA_ROUNDS)
+    """Uniform numbers in [0, 1) (multiples of 2^-24): the hash of ``index`` (UInt32, per
+    lane) mixed with the hash of ``key`` (UInt32), hashed again."""
+    h = hash32(hash32(index) + hash32(key))
+    return mi.Float(h >> 8) * (1.0 / (1 << 24))
 
 
 def stream(key, which: int):
@@ -84,56 +93,64 @@ def wrap(x):
     return dr.select(y >= 1.0, 0.0, y)
 
 
-def mutate(u, chain_ids, dims: int, key, large_step: float, sigma: float):
-    """The proposal of each chain in ``chain_ids`` (UInt32, m lanes) from its current vector
-    in ``u`` (flat, chains x ``dims``): (flat proposal, m x dims; large-step mask, m lanes).
-    ``large_step``: probability of a large step; ``sigma``: Kelemen's s2."""
-    m = dr.width(chain_ids)
-    large = uniform(chain_ids, stream(key, STREAM_LARGE)) < large_step
-    flat = dr.arange(mi.UInt32, m * dims)
-    lane = flat // dims
-    chain = dr.gather(mi.UInt32, chain_ids, lane)
-    index = chain * dims + (flat - lane * dims)
-    cur = dr.gather(mi.Float, u, index)
+def propose(cur, index, key, large, sigma: float):
+    """The proposed value of coordinate ``index`` (UInt32, chain x dims + d) whose current
+    value is ``cur``: uniform with ``large`` (a large step), else ``cur`` moved by Kelemen's
+    offset of size ``sigma``, mod 1.  A function of (cur, index, key), so the path kernel draws
+    the coordinates it needs lazily and the accept step recomputes the same values."""
     r = uniform(index, stream(key, STREAM_COORD))
-    big = dr.gather(mi.Bool, large, lane)
-    prop = dr.select(big, r, wrap(cur + kelemen_offset(r, sigma)))
-    return prop, large
+    return dr.select(large, r, wrap(cur + kelemen_offset(r, sigma)))
+
+
+def large_steps(chain_ids, key, large_step: float):
+    """Which chains take a large step (probability ``large_step``) in the step of ``key``."""
+    return uniform(chain_ids, stream(key, STREAM_LARGE)) < large_step
 
 
 class PrimarySampler:
     """``next_1d``/``next_2d`` reading each lane's primary vector coordinate by coordinate.
 
-    Made by :func:`primary_sampler`, which binds the read-only data (``u``, ``dims``,
-    ``lanes``, ``key``) to a class of its own: Dr.Jit's loops rebuild a struct from its type
-    and its declared fields (here only the per-lane counter ``dim``), so the data must live on
-    the type.  ``u``: flat Float of lanes x ``dims`` coordinates (row-major), or None to
-    generate the coordinates of lane ``i`` as ``uniform(lanes[i] * dims + d, key)`` (bootstrap
-    vectors, regenerated later from their index).  ``lanes``: the row of ``u`` per lane.
-    Coordinates past ``dims`` are fresh numbers keyed by (lane, dimension, ``key``)."""
+    Made by :func:`primary_sampler`, which binds the read-only data to a class of its own:
+    Dr.Jit's loops rebuild a struct from its type and its declared fields (here only the
+    per-lane counter ``dim``), so the data must live on the type.  Lane i reads row
+    ``rows[i]`` of ``u`` (flat Float, chains x ``dims``, row-major): with ``large`` (Bool per
+    lane) given, the *proposal* of that row (:func:`propose`, drawn lazily), else the row
+    itself (the current state); with ``u`` None,
+    the generated vector ``uniform(rows[i] * dims + d, key)`` (bootstrap vectors, regenerated
+    later from their index).  Coordinates past ``dims`` (only with ``extra``) are fresh
+    numbers keyed by (row, dimension, ``key``)."""
 
     DRJIT_STRUCT = {"dim": mi.UInt32}
     u = None
     dims = 0
-    lanes = None
+    rows = None
     key = None
-    extra_key = None
+    large = None
+    sigma = 0.0
+    extra = True
 
     def __init__(self):
-        self.dim = dr.zeros(mi.UInt32, dr.width(self.lanes)) if self.lanes is not None \
+        self.dim = dr.zeros(mi.UInt32, dr.width(self.rows)) if self.rows is not None \
             else mi.UInt32(0)
 
     def next_1d(self, active=True):
         d = self.dim
-        stored = d < self.dims
-        dd = dr.minimum(d, self.dims - 1) if self.dims > 0 else mi.UInt32(0)
-        if self.u is None:
-            v = uniform(self.lanes * self.dims + dd, self.key)
-        else:
-            v = dr.gather(mi.Float, self.u, self.lanes * self.dims + dd, stored)
-        extra = uniform(self.lanes, mi.sample_tea_32(self.extra_key, d, 4)[0])
         self.dim = d + 1
-        return dr.select(stored, v, extra) if self.dims > 0 else extra
+        if self.dims == 0:
+            return self._extra(d)
+        stored = d < self.dims
+        index = self.rows * self.dims + dr.minimum(d, self.dims - 1)
+        if self.u is None:
+            v = uniform(index, self.key)
+        elif self.large is None:
+            v = dr.gather(mi.Float, self.u, index)
+        else:
+            v = propose(dr.gather(mi.Float, self.u, index), index, self.key, self.large,
+                        self.sigma)
+        return dr.select(stored, v, self._extra(d)) if self.extra else v
+
+    def _extra(self, d):
+        return uniform(self.rows, hash32(stream(self.key, STREAM_EXTRA)) + d)
 
     def next_2d(self, active=True):
         x = self.next_1d(active)
@@ -141,10 +158,12 @@ class PrimarySampler:
         return mi.Point2f(x, y)
 
 
-def primary_sampler(u, dims: int, lanes, key) -> PrimarySampler:
-    """A :class:`PrimarySampler` over ``u`` (or generated vectors with ``u`` None) for the
-    lanes ``lanes`` (UInt32), with the step's ``key`` (UInt32)."""
+def primary_sampler(u, dims: int, rows, key, large=None, sigma: float = 0.0,
+                    extra: bool = True) -> PrimarySampler:
+    """A :class:`PrimarySampler`: lane i reads row ``rows[i]`` of ``u`` (its proposal when
+    ``large`` is given; generated vectors with ``u`` None), with the step's ``key`` (UInt32).
+    ``extra`` False: the path never draws more than ``dims`` numbers (finite max_depth)."""
     cls = type("PrimarySampler", (PrimarySampler,),
-               {"u": u, "dims": int(dims), "lanes": mi.UInt32(lanes), "key": mi.UInt32(key),
-                "extra_key": stream(key, STREAM_EXTRA)})
+               {"u": u, "dims": int(dims), "rows": mi.UInt32(rows), "key": mi.UInt32(key),
+                "large": large, "sigma": float(sigma), "extra": bool(extra)})
     return cls()

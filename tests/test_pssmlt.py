@@ -1,0 +1,255 @@
+"""pssmlt (issue 18): Metropolis sampling in primary sample space.
+
+Statistical tests, each with its null hypothesis and level (the kit's ``count_check`` counts
+them into the end-of-run false-failure bound):
+
+* detailed balance on a toy integrand with a known answer: chains started uniformly and run
+  with large steps, and with small steps alone, are distributed as the target (chi-square on
+  the chains' bins, H0: the chain states follow the target, alpha 1e-4 each);
+* the bootstrap estimate b is unbiased (H0: E[b] = the image's mean luminance by Mitsuba's
+  ``path``; Welch t, alpha DEFAULT_ALPHA);
+* the image mean and block means equal Mitsuba's ``path`` (Cornell box and a lamp in a glass
+  shade): independent renders (fresh seeds, ``continue_chains`` off) against independent
+  ``path`` renders, block-wise Welch t with Sidak (the kit's ``image_test``), and a power guard
+  (the relative standard error small enough to see the bias named in the test).  The default
+  suite sees a 5 % bias (guard 0.75 %); the slow tests see 1 % (guard 0.25 %: a 1 % bias gives
+  |t| >= 4) and compare 4x4 blocks at high mutation counts.  A test of blocks also catches
+  start-up bias: chains that start away from the target (too few mutations to forget it)
+  give dim regions too much weight and bright ones too little.
+
+Deterministic checks: a chain's stored state is what its stored primary vector evaluates to;
+passes with consecutive seeds continue the chains (and other seeds start afresh); parameters,
+defaults and the refused ``estimator=bdpt``.
+"""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import integrators  # noqa: F401  (variant + plugins)
+import drjit as dr
+import mitsuba as mi
+from scipy import stats
+
+from integrators.plugins import pssmlt as P
+from integrators.sampling import primary_sample as ps
+from integrators.testing.stats import DEFAULT_ALPHA, count_check, image_test
+
+CHI2_ALPHA = 1e-4
+
+
+# ---- scenes -------------------------------------------------------------------------------
+def cornell(res=16, max_depth=5):
+    d = mi.cornell_box()
+    film = d["sensor"]["film"]
+    film.update(width=res, height=res, pixel_format="rgb", rfilter={"type": "box"})
+    d["integrator"] = {"type": "path", "max_depth": max_depth}
+    return mi.load_dict(d)
+
+
+def glass_shade(res=16):
+    return mi.load_file("scenes/pssmlt_glass_shade.xml", res=res, max_depth=5,
+                        integrator="path")
+
+
+def pssmlt(**kw):
+    return mi.load_dict({"type": "pssmlt", "max_depth": 5, "chains": 4096, "bootstrap": 16384,
+                         "continue_chains": False, **kw})
+
+
+def renders(scene, integ, n, spp, seed0):
+    """n independent renders (seeds far apart, so no render continues another's chains)."""
+    return np.array([np.array(mi.render(scene, integrator=integ, spp=spp, seed=seed0 + 97 * k))
+                     for k in range(n)], dtype=np.float64)
+
+
+# ---- the toy integrand: a 4 x 4 table of weights on [0, 1)^2 ------------------------------
+TOY = np.array([[1.0, 2.0, 0.5, 4.0],
+                [8.0, 1.0, 3.0, 0.7],
+                [2.5, 6.0, 1.0, 1.5],
+                [0.6, 1.2, 5.0, 2.0]])
+
+
+def toy_evaluate(sampler):
+    """(bin, rgb, I) of the toy: I = TOY[bin(y), bin(x)] (luminance weights sum to 1)."""
+    x, y = sampler.next_1d(), sampler.next_1d()
+    n = TOY.shape[0]
+    bx = dr.minimum(mi.UInt32(x * n), n - 1)
+    by = dr.minimum(mi.UInt32(y * n), n - 1)
+    b = by * n + bx
+    f = dr.gather(mi.Float, mi.Float(TOY.ravel()), b)
+    return b, mi.Color3f(f, f, f), f
+
+
+@pytest.mark.parametrize("large_step,sigma", [(0.3, 1 / 64), (0.0, 0.25)],
+                         ids=["large+small", "small-only"])
+def test_chains_reach_the_target(large_step, sigma):
+    """H0: after burn-in, the states of independent chains started *uniformly* (not from the
+    bootstrap) are distributed as the target I / int I (chi-square over the 16 bins, alpha
+    1e-4).  Detailed balance of the proposal (symmetric small steps, independence large steps)
+    and the acceptance min(1, I'/I) make the target stationary; a wrong acceptance or an
+    asymmetric perturbation moves the chains elsewhere."""
+    chains, steps = 20000, 250
+    st = P.start(toy_evaluate, 2, chains, chains, seed=7 + int(large_step * 10),
+                 resample=False, extra=False)
+    image = dr.zeros(mi.Float, TOY.size * 3)
+    P.run(toy_evaluate, st, chains * steps, image, dr.opaque(mi.Float, 1.0), large_step, sigma)
+    counts = np.bincount(np.array(st.pix), minlength=TOY.size)
+    expected = chains * TOY.ravel() / TOY.sum()
+    count_check(CHI2_ALPHA, "chi2")
+    chi2, p = stats.chisquare(counts, expected)
+    assert p >= CHI2_ALPHA, (f"H0 (chain states follow the target) rejected: chi2 {chi2:.1f}, "
+                             f"p {p:.3g} < {CHI2_ALPHA}; counts {counts.tolist()} expected "
+                             f"{np.round(expected).astype(int).tolist()}")
+    # the expected-value splats estimate the integral of each bin (b = the toy's mean)
+    h = np.array(image).reshape(-1, 3)[:, 0] / (chains * steps) * TOY.mean() * TOY.size
+    assert np.allclose(h, TOY.ravel(), rtol=0.1), (h.round(2), TOY.ravel())
+
+
+def test_kelemen_offset_is_symmetric():
+    """The small step's offset density is even (the proposal is symmetric): the offsets of a
+    fine grid of uniforms come in +- pairs, between sigma/16 and sigma."""
+    r = mi.Float((np.arange(4096) + 0.5) / 4096)
+    off = np.array(ps.kelemen_offset(r, 0.25))
+    assert np.allclose(np.sort(off[off > 0]), np.sort(-off[off < 0]), rtol=1e-5)
+    assert np.all(np.abs(off) <= 0.25 + 1e-7) and np.all(np.abs(off) >= 0.25 / 16 - 1e-7)
+
+
+def test_chain_state_is_what_its_vector_evaluates_to():
+    """Each chain's stored contribution, importance and pixel are those its stored primary
+    vector gives when evaluated again (so the accept step stored the very proposal that was
+    evaluated, coordinate for coordinate)."""
+    scene = cornell(16)
+    integ = pssmlt()
+    mi.render(scene, integrator=integ, spp=32, seed=3)
+    st = integ.state
+    sensor = scene.sensors()[0]
+    sel = integ.prepare(scene)
+    smp = ps.primary_sampler(st.u, st.dims, dr.arange(mi.UInt32, st.chains), mi.UInt32(1),
+                             None, 0.0, st.extra)
+    pix, rgb, lum = integ.contribution(scene, sensor, sel, smp)
+    assert st.mutations == 32 * 16 * 16
+    np.testing.assert_array_equal(np.array(pix), np.array(st.pix))
+    np.testing.assert_allclose(np.array(lum), np.array(st.lum), rtol=1e-5, atol=1e-7)
+    np.testing.assert_allclose(np.array(rgb), np.array(st.rgb), rtol=1e-5, atol=1e-7)
+
+
+def test_bootstrap_b_is_unbiased():
+    """H0: E[b] = the mean luminance of Mitsuba's path image (Welch t on 40 bootstrap
+    estimates of 65,536 paths each against 10 path renders, alpha DEFAULT_ALPHA); power guard:
+    relative standard error below 1 % (a 5 % bias gives |t| >= 5)."""
+    scene = cornell(16)
+    integ = pssmlt(separate_emission=False)
+    sensor = scene.sensors()[0]
+    sel = integ.prepare(scene)
+
+    def ev(s):
+        return integ.contribution(scene, sensor, sel, s)
+    b = np.array([P.start(ev, integ.dims, 256, 65536, seed=1000 + k, extra=integ.extra).b
+                  for k in range(40)])
+    ref = renders(scene, mi.load_dict({"type": "path", "max_depth": 5}), 10, 1024, 50)
+    lum = ref @ np.array([0.212671, 0.715160, 0.072169])
+    y = lum.mean(axis=(1, 2))
+    count_check(DEFAULT_ALPHA)
+    t, p = stats.ttest_ind(b, y, equal_var=False)
+    se = np.sqrt(b.var(ddof=1) / b.size + y.var(ddof=1) / y.size) / y.mean()
+    assert se < 0.01, f"too noisy to test: relative s.e. {se:.4f}"
+    assert p >= DEFAULT_ALPHA, (f"H0 (E[b] = path's mean luminance) rejected: b {b.mean():.5f} "
+                                f"vs {y.mean():.5f}, t {t:.2f}, p {p:.3g}")
+
+
+def _compare(scene, n, spp, ref_n, ref_spp, block, guard, **kw):
+    ours = renders(scene, pssmlt(**kw), n, spp, 11)
+    ref = renders(scene, mi.load_dict({"type": "path", "max_depth": 5}), ref_n, ref_spp,
+                  100003)
+    r = image_test(ours, ref, block=block)
+    assert r.passed, f"H0 ({r.h0}) rejected: {r}"
+    assert r.rel_se < guard, f"too noisy to see the bias: {r}"
+    return r
+
+
+@pytest.mark.parametrize("which", ["cornell", "glass_shade"])
+def test_image_mean_matches_path(which):
+    """H0: pssmlt's expected image mean (per channel) is path's: one block over the whole
+    16x16 image, Welch t, Sidak over channels, alpha DEFAULT_ALPHA; power guard 0.75 % (a 5 %
+    bias gives |t| >= 6.7, the critical value is about 4.9).  The noise of the mean is the
+    noise of b, heavy-tailed in the glass shade (the lamp is found through glass only)."""
+    if which == "cornell":
+        _compare(cornell(16), 32, 64, 24, 2048, 16, 0.0075, bootstrap=65536)
+    else:
+        _compare(glass_shade(16), 32, 64, 24, 2048, 16, 0.0075, bootstrap=131072)
+
+
+def test_blocks_match_path_small_image():
+    """H0: the same expected image as path per 2x2 block of an 8x8 image (Welch t per block
+    and channel, Sidak, alpha DEFAULT_ALPHA): the film position of a path is its own pixel.
+    Power guard: median relative s.e. of a block below 3 %."""
+    _compare(cornell(8), 24, 512, 12, 2048, 2, 0.03)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("which", ["cornell", "glass_shade"])
+def test_image_mean_matches_path_within_1_percent(which):
+    """As test_image_mean_matches_path with the power to see a 1 % bias (guard 0.25 %)."""
+    scene = cornell(16) if which == "cornell" else glass_shade(16)
+    _compare(scene, 200, 128, 64, 4096, 16, 0.0025, bootstrap=65536)
+
+
+@pytest.mark.slow
+def test_blocks_match_path_high_mutation_counts():
+    """H0: the same expected image as path per 4x4 block of a 32x32 Cornell box at 1024
+    mutations per pixel (Welch t per block and channel, Sidak, alpha DEFAULT_ALPHA); guard:
+    median relative s.e. of a block below 2 %."""
+    _compare(cornell(32), 24, 1024, 12, 4096, 4, 0.02)
+
+
+# ---- passes, parameters, formats --------------------------------------------------------------
+def test_passes_continue_the_chains():
+    """render's passes (seeds s, s+1, ...) continue one run's chains: one bootstrap, the
+    mutations of every pass counted; a render with an unrelated seed starts afresh; the run
+    record lists continue_chains."""
+    from integrators.app.record import RunRecord, integrator_description
+    scene = cornell(8)
+    integ = pssmlt(continue_chains=True)
+    imgs = [np.array(mi.render(scene, integrator=integ, spp=8, seed=s)) for s in (5, 6, 7)]
+    s = integ.stats()
+    assert s["seed_first"] == 5 and s["seed_last"] == 7
+    assert s["mutations"] == 3 * 8 * 64
+    assert all(np.all(np.isfinite(i)) for i in imgs)
+    mi.render(scene, integrator=integ, spp=8, seed=100)
+    assert integ.stats()["seed_first"] == 100 and integ.stats()["mutations"] == 8 * 64
+    name, params = integrator_description(integ)
+    assert name == "pssmlt" and params["continue_chains"] is True
+    assert isinstance(RunRecord(integrator=name, params=params).to_json(), str)
+
+
+def test_progressive_render_uses_one_run():
+    """integrators.app.progressive.render (the render CLI's loop) with spp: its passes are
+    one run of the chains, spp x W x H mutations in all."""
+    from integrators.app import progressive
+    d = mi.cornell_box()
+    d["sensor"]["film"].update(width=8, height=8, pixel_format="rgb", rfilter={"type": "box"})
+    d["integrator"] = {"type": "pssmlt", "max_depth": 5, "chains": 1024, "bootstrap": 4096}
+    scene = mi.load_dict(d)
+    acc = progressive.render(scene, spp=64, seed=3)
+    s = scene.integrator().stats()
+    assert acc.passes > 1 and s["seed_first"] == 3 and s["seed_last"] == 3 + acc.passes - 1
+    assert s["mutations"] == 64 * 64
+    assert np.all(np.isfinite(acc.mean())) and acc.mean().mean() > 0
+
+
+def test_defaults_render():
+    """<integrator type="pssmlt"/> renders with every default (a luminance film too)."""
+    d = mi.cornell_box()
+    d["sensor"]["film"].update(width=8, height=8, pixel_format="luminance")
+    d["integrator"] = {"type": "pssmlt"}
+    scene = mi.load_dict(d)
+    img = np.array(mi.render(scene, spp=4))
+    assert img.shape == (8, 8, 1) and np.all(np.isfinite(img)) and img.mean() > 0
+
+
+def test_bdpt_estimator_refused_in_one_line():
+    with pytest.raises(Exception) as e:
+        mi.load_dict({"type": "pssmlt", "estimator": "bdpt"})
+    msg = str(e.value)
+    assert "estimator" in msg and "not yet available" in msg
