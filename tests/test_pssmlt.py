@@ -23,6 +23,8 @@ defaults and the refused ``estimator=bdpt``.
 """
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -36,6 +38,7 @@ from integrators.sampling import primary_sample as ps
 from integrators.testing.stats import DEFAULT_ALPHA, count_check, image_test
 
 CHI2_ALPHA = 1e-4
+SCENES = Path(__file__).resolve().parents[1] / "scenes"
 
 
 # ---- scenes -------------------------------------------------------------------------------
@@ -48,7 +51,7 @@ def cornell(res=16, max_depth=5):
 
 
 def glass_shade(res=16):
-    return mi.load_file("scenes/pssmlt_glass_shade.xml", res=res, max_depth=5,
+    return mi.load_file(str(SCENES / "pssmlt_glass_shade.xml"), res=res, max_depth=5,
                         integrator="path")
 
 

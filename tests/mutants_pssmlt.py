@@ -1,0 +1,43 @@
+"""Planted bugs in pssmlt (issue 18) that tests/test_pssmlt.py must catch (tests/mutation.py
+format: name, file, original text, mutated text, target test files)."""
+
+_P = "integrators/plugins/pssmlt.py"
+_S = "integrators/sampling/primary_sample.py"
+_T = ["test_pssmlt.py"]
+
+MUTANTS = [
+    # acceptance min(1, sqrt(I'/I)): the chains' stationary density becomes sqrt(I)
+    ("pssmlt-acceptance-sqrt", _P,
+     "a = dr.select(pos_c, dr.minimum(1.0, lum / dr.select(pos_c, lum_c, 1.0)), 1.0)",
+     "a = dr.select(pos_c, dr.minimum(1.0, dr.sqrt(lum / dr.select(pos_c, lum_c, 1.0))), 1.0)",
+     _T),
+    # Kelemen's perturbation with a biased sign: the small step is no longer symmetric
+    ("pssmlt-kelemen-asymmetric", _S, "neg = r < 0.5", "neg = r < 0.47", _T),
+    # the current state splatted with a instead of 1 - a
+    ("pssmlt-splat-weights-swapped", _P,
+     "w_c = dr.select(pos_c, (1.0 - a) * scale",
+     "w_c = dr.select(pos_c, a * scale", _T),
+    # the accept step stores another vector than the proposal that was evaluated
+    ("pssmlt-stored-vector-not-the-proposal", _P,
+     "prop = ps.propose(dr.gather(mi.Float, st.u, index), index, k,",
+     "prop = ps.propose(dr.gather(mi.Float, st.u, index), index + 1, k,", _T),
+    # b's count takes every mutation, not only the large steps whose I it sums
+    ("pssmlt-b-counts-every-mutation", _P,
+     "st.lum_count += int(_scalar(n_large))",
+     "st.lum_count += m", _T),
+    # film position x and y swapped when choosing the pixel
+    ("pssmlt-pixel-transposed", _P,
+     "return py * w + px, rgb, importance(rgb)",
+     "return px * w + py, rgb, importance(rgb)", _T),
+    # emission seen directly counted by the chains and again by seen_emission
+    ("pssmlt-emission-twice", _P,
+     "if self.separate_emission:   # rendered apart (seen_emission)",
+     "if False:   # rendered apart (seen_emission)", _T),
+    # the chains start from the bootstrap paths in order, not resampled by I
+    ("pssmlt-no-resampling", _P,
+     "if resample and lum_sum > 0:", "if False and lum_sum > 0:", _T),
+    # the splat scale miscounts the mutations of a pass
+    ("pssmlt-scale-miscount", _P,
+     "dr.opaque(mi.Float, w * h / total)",
+     "dr.opaque(mi.Float, w * h / (total + st.chains))", _T),
+]
