@@ -18,13 +18,14 @@ Measured per scene, side by side in one process:
 * **set-up**: wall time of the first ``mi.render`` with a fresh integrator (1 spp): light powers,
   tree build, tracing and compiling (or loading from Dr.Jit's kernel cache) included; path first;
 * **selection set-up**: ``light_selection.make(scene, mode)`` alone (powers, bounds, tree);
-* **one choice alone**: kernel time of ``choose`` at 2^18 random points of the floor plane (the
-  selection's own cost, without Mitsuba's emitter calls), per choice;
+* **one choice alone**: wall time of ``choose`` at 2^20 random points of the floor plane (the
+  selection's own cost, without Mitsuba's emitter calls; tracing included, best warm run), per
+  choice;
 * **per-call overhead**: wall time of a later 1-spp render (Mitsuba's per-call work over the
   emitters, which at thousands of lights dwarfs the kernel);
 * **time per sample**: the execution time of the render's kernels from Dr.Jit's kernel history
-  (``JitFlag.KernelHistory``), divided by pixels x spp; median over ``--repeats`` renders taken
-  round-robin over the methods;
+  (``JitFlag.KernelHistory``), divided by pixels x spp; the least of ``--repeats`` renders taken
+  round-robin over the methods (the least disturbed by other work on a shared machine);
 * **relMSE at 1 spp**: sum over pixels of (I - R)^2 / sum R^2 of a ``--spp`` render times spp,
   averaged over the repeats; R: ``nee_path`` with ``bvh`` at ``--ref-spp`` (its own noise, about
   spp / ref-spp of a method's relMSE, is left in);
@@ -108,7 +109,7 @@ def measure(scene_name: str, n_lights, res: int, spp: int, repeats: int, ref_spp
         _, overhead[name], _ = render(integs[name], 1, 1)
     from integrators.sampling.light_selection import make
     select_s, choose_ns = {}, {}
-    lanes = 1 << 18
+    lanes = 1 << 20
     rng = np.random.default_rng(0)
     bb = scene.bbox()
     lo_b, hi_b = np.array(bb.min, float).ravel(), np.array(bb.max, float).ravel()
@@ -119,20 +120,21 @@ def measure(scene_name: str, n_lights, res: int, spp: int, repeats: int, ref_spp
         t = time.perf_counter()
         sel = make(scene, name)
         select_s[name] = time.perf_counter() - t
-        # the selection alone: one choice at each of 2^18 random points of the floor plane
-        kern = []
+        # the selection alone: one choice at each of 2^20 random points of the floor plane
+        wall = []
         for r in range(repeats + 1):
             si = dr.zeros(mi.SurfaceInteraction3f, lanes)
             si.p = mi.Point3f(pts[0], pts[1], float(lo_b[2]))
             si.n = mi.Vector3f(0, 0, 1)
             u = mi.Float(rng.random(lanes).astype(np.float32))
             dr.eval(si, u)
-            dr.kernel_history()
+            dr.sync_thread()
+            t = time.perf_counter()
             _, pmf, _ = sel.choose(si, u)
             dr.eval(pmf)
             dr.sync_thread()
-            kern.append(_kernel_seconds(dr) / lanes * 1e9)
-        choose_ns[name] = statistics.median(kern[1:])
+            wall.append((time.perf_counter() - t) / lanes * 1e9)
+        choose_ns[name] = min(wall[1:])       # the least disturbed of the warm runs
     ref, _, _ = render(integs["bvh"], ref_spp, 12345)
     ref_sq = float((ref ** 2).sum())
     rel, tps, means = {m: [] for m in methods}, {m: [] for m in methods}, {m: [] for m in methods}
@@ -150,7 +152,7 @@ def measure(scene_name: str, n_lights, res: int, spp: int, repeats: int, ref_spp
             "setup_s": setup[name], "overhead_s": overhead[name],
             "selection_s": select_s.get(name), "choose_ns": choose_ns.get(name),
             "relmse_1spp": statistics.mean(rel[name]),
-            "time_per_sample_us": statistics.median(tps[name]) * 1e6,
+            "time_per_sample_us": min(tps[name]) * 1e6,
             "mean_ratio": statistics.mean(means[name]) / max(float(ref.mean()), 1e-30)}
     base = out["methods"]["path"]
     for name, m in out["methods"].items():
@@ -208,9 +210,10 @@ def table(results) -> str:
     if fields:
         lo, hi = min(fields, key=lambda r: r["lights"]), max(fields, key=lambda r: r["lights"])
         b = [r["methods"]["bvh"] for r in (lo, hi)]
+        path_lo, path_hi = (r["methods"]["path"]["time_per_sample_us"] for r in (lo, hi))
         lines += ["", f"bvh time per sample at {hi['lights']:,} / at {lo['lights']:,} lights: "
                   f"{b[1]['time_per_sample_us'] / b[0]['time_per_sample_us']:.2f}x (path: "
-                  f"{hi['methods']['path']['time_per_sample_us'] / lo['methods']['path']['time_per_sample_us']:.2f}x); "
+                  f"{path_hi / path_lo:.2f}x); "
                   f"one bvh choice alone: {b[1]['choose_ns'] / b[0]['choose_ns']:.2f}x; "
                   f"bvh first render / path first render at {hi['lights']:,} lights: "
                   f"{b[1]['setup_s'] / hi['methods']['path']['setup_s']:.2f}x; bvh selection "
@@ -254,7 +257,7 @@ def chart(path: Path, results) -> None:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python -m benchmarks.light_tree",
                                  description=__doc__.split("\n\n")[0])
-    ap.add_argument("--lights", type=int, nargs="+", default=list(LIGHTS))
+    ap.add_argument("--lights", type=int, nargs="*", default=list(LIGHTS))
     ap.add_argument("--res", type=int, default=64)
     ap.add_argument("--spp", type=int, default=4)
     ap.add_argument("--repeats", type=int, default=3)

@@ -24,7 +24,7 @@ MUTANTS = [
      'imp = dr.select(cos_p > g["cos_e"] + 0.3, imp, 0.0)', TESTS),
     # a parent's cone is its first child's only (not conservative)
     ("tree-cone-union-dropped", T,
-     "tree.w[nd], tree.cos_o[nd] = cone_union(tree.w[a], tree.cos_o[a], tree.w[b2], tree.cos_o[b2])",
+     "tree.w[nd], tree.cos_o[nd] = cone_union(tree.w[a], tree.cos_o[a], w2, c2)",
      "tree.w[nd], tree.cos_o[nd] = tree.w[a], tree.cos_o[a]", TESTS),
     # a parent's box is its first child's only (not conservative)
     ("tree-box-union-dropped", T,

@@ -63,7 +63,8 @@ axis), with one light per leaf.  To keep the build fast, nodes of at most 64 lig
 orientation measure out of the cost (their split is by area and power: below that size their
 lights' cones differ little in practice), nodes of at most 8 lights are split at the median of
 their longest centroid extent, and where every light of a level has the same cone (all point
-or sphere lights, a ceiling of equal panels) the orientation measure drops out exactly.  Bucket cones are bounded by their mean axis and the largest
+or sphere lights, a ceiling of equal panels) the orientation measure drops out exactly.  Bucket
+cones are bounded by their mean axis and the largest
 angle to it, unions of cones follow pbrt's ``Union(DirectionCone, DirectionCone)``.  A node
 with no valid split (all centroids equal), or deeper than 40, is split at the median count, so
 the depth stays below 64 for up to 2^24 lights.  Nodes are numbered level by level with the two
@@ -119,7 +120,8 @@ def cone_union(wa, ca, wb, cb):
     k = wr / np.maximum(lr, 1e-30)[..., None]
     # Rodrigues: rotate wa about k by tr
     ct, st = np.cos(tr)[..., None], np.sin(tr)[..., None]
-    w = wa * ct + np.cross(k, wa) * st + k * np.einsum("...i,...i->...", k, wa)[..., None] * (1 - ct)
+    kw = np.einsum("...i,...i->...", k, wa)[..., None]
+    w = wa * ct + np.cross(k, wa) * st + k * kw * (1 - ct)
     w /= np.maximum(_norm(w), 1e-30)[..., None]
     c = np.cos(to)
     full = (to >= math.pi) | (lr == 0)
@@ -296,11 +298,13 @@ def build(lo, hi, w, cos_o, cos_e, two, phi) -> Tree:
         tree.lo[nd] = np.minimum(tree.lo[a], tree.lo[b2])
         tree.hi[nd] = np.maximum(tree.hi[a], tree.hi[b2])
         tree.phi[nd] = tree.phi[a] + tree.phi[b2]
-        tree.centre[nd] = ((tree.phi[a, None] * tree.centre[a] + tree.phi[b2, None] * tree.centre[b2])
+        pa, pb = tree.phi[a, None], tree.phi[b2, None]
+        tree.centre[nd] = ((pa * tree.centre[a] + pb * tree.centre[b2])
                            / np.maximum(tree.phi[nd], 1e-300)[:, None])
         tree.two[nd] = tree.two[a] | tree.two[b2]
         tree.cos_e[nd] = np.minimum(tree.cos_e[a], tree.cos_e[b2])
-        tree.w[nd], tree.cos_o[nd] = cone_union(tree.w[a], tree.cos_o[a], tree.w[b2], tree.cos_o[b2])
+        w2, c2 = tree.w[b2], tree.cos_o[b2]
+        tree.w[nd], tree.cos_o[nd] = cone_union(tree.w[a], tree.cos_o[a], w2, c2)
     return tree
 
 
@@ -377,7 +381,8 @@ def _best_splits(ids, seg, S, offs, centroid, lo, hi, w, cos_o, cos_e, phi, orie
                 acc_ce = np.minimum(acc_ce, bce[:, k])
                 acc_w, acc_c = cone_union(acc_w, acc_c, bw[:, k], bco[:, k])
                 cc = np.where(np.isfinite(acc_c), acc_c, 1.0)
-                out[:, i] = acc_phi * m_omega(cc, acc_ce) * _area(acc_lo, np.maximum(acc_hi, acc_lo))
+                area = _area(acc_lo, np.maximum(acc_hi, acc_lo))
+                out[:, i] = acc_phi * m_omega(cc, acc_ce) * area
             return out
 
         left = sweep(range(BUCKETS - 1))                      # buckets 0..k
@@ -746,8 +751,8 @@ class LightTreeSelection(LightSelection):
         if not self.n_inf:
             pmf = mi.Float(0.0)
         elif is_jit():
-            pmf = dr.select(kind == INFINITE,
-                            dr.gather(mi.Float, self.inf_pmf, slot, active & (kind == INFINITE)), 0.0)
+            is_inf = active & (kind == INFINITE)
+            pmf = dr.select(is_inf, dr.gather(mi.Float, self.inf_pmf, slot, is_inf), 0.0)
         else:
             pmf = float(self.inf_pmf[slot]) if kind == INFINITE else 0.0
         if self.tree is not None:

@@ -88,7 +88,8 @@ def xml(n: int, seed: int = 15) -> str:
            f'        <float name="fov" value="{CAMERA["fov"]}"/>',
            '        <transform name="to_world"><lookat origin="{}, {}, {}" target="{}, {}, {}" '
            'up="0, 0, 1"/></transform>'.format(*CAMERA["origin"], *CAMERA["target"]),
-           '        <sampler type="independent"><integer name="sample_count" value="$spp"/></sampler>',
+           '        <sampler type="independent"><integer name="sample_count" value="$spp"/>'
+           '</sampler>',
            '        <film type="hdrfilm"><integer name="width" value="$res"/>'
            '<integer name="height" value="$res"/><rfilter type="box"/></film>',
            '    </sensor>',
