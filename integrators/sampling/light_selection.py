@@ -105,7 +105,8 @@ def emitter_power(emitter, n: int | None = None) -> float:
     return _mean(ray_sample, n)
 
 
-POWER_LANES = 1 << 22     # lanes of the one vectorised power kernel (samples x emitters)
+POWER_LANES = 1 << 20     # lanes of the one vectorised power kernel (samples x emitters)
+POWER_SAMPLES_MIN = 64
 
 
 def _finite_mean(vals: np.ndarray) -> np.ndarray:
@@ -119,7 +120,7 @@ def emitter_powers(scene, emitters=None, normals: bool = False):
     """Powers of all ``scene.emitters()`` (numpy float64), as :func:`emitter_power` defines
     them.  In JIT variants one vectorised kernel per kind (area lights, other emitters) instead
     of one per emitter: every emitter gets the same K low-discrepancy points, K = 2^14 for few
-    emitters and down to 256 for many (2^22 lanes in all; exact for constant radiance either
+    emitters and down to 64 for many (2^20 lanes in all; exact for constant radiance either
     way).  ``normals``: also return the surface normal of every area light at its first sample
     point ((N, 3), zeros for other emitters)."""
     emitters = scene.emitters() if emitters is None else emitters
@@ -142,7 +143,7 @@ def emitter_powers(scene, emitters=None, normals: bool = False):
         idx = np.nonzero(has_shape == area)[0]
         if not len(idx):
             continue
-        k = int(min(POWER_SAMPLES_JIT, max(256, POWER_LANES // len(idx))))
+        k = int(min(POWER_SAMPLES_JIT, max(POWER_SAMPLES_MIN, POWER_LANES // len(idx))))
         u = np.minimum(_r2(k, 5).astype(np.float32), np.float32(1 - 2**-24))
         uu = [mi.Float(np.tile(u[:, c], len(idx))) for c in range(5)]
         em = dr.gather(mi.EmitterPtr, ptrs, mi.UInt32(np.repeat(idx, k).astype(np.uint32)))
@@ -157,14 +158,15 @@ def emitter_powers(scene, emitters=None, normals: bool = False):
                 si.wavelengths, _ = mi.sample_rgb_spectrum(mi.sample_shifted(uu[2]))
             le = em.eval(si, True)
             val = channel_mean(le) * dr.select(ps.pdf > 0, dr.rcp(ps.pdf), 0.0) * dr.pi
-            if normals:
-                nn = np.array(ps.n, dtype=np.float64).reshape(3, -1).T.reshape(len(idx), k, 3)
-                first_n[idx] = nn[:, 0]
         else:
             _, w = em.sample_ray(0.0, uu[0], mi.Point2f(uu[1], uu[2]), mi.Point2f(uu[3], uu[4]),
                                  True)
             val = channel_mean(w)
         power[idx] = _finite_mean(np.array(val, dtype=np.float64).reshape(len(idx), k))
+        if normals and area:   # the normal at the first point of every shape
+            sub = dr.gather(mi.EmitterPtr, ptrs, mi.UInt32(idx.astype(np.uint32))).get_shape()
+            ps = sub.sample_position(0.0, mi.Point2f(float(u[0, 0]), float(u[0, 1])))
+            first_n[idx] = np.array(ps.n, dtype=np.float64).reshape(3, -1).T
     return (power, first_n) if normals else power
 
 
