@@ -27,7 +27,7 @@ MUTANTS = [
     # next-event estimation weighted against the BSDF hit only (the light-subpath strategies
     # that also produce the path are forgotten): weights sum to more than one
     ("bdpt-nee-weight-without-light-subpaths", _BDPT,
-     "w1 = finite_weight(w_light + 1.0 + w_cam)", "w1 = finite_weight(w_light + 1.0)", _T),
+     "w1 = self.weight(w_light + 1.0 + w_cam)", "w1 = self.weight(w_light + 1.0)", _T),
     # a delta scattering on the camera subpath keeps its ratio (strategies that cannot connect
     # through a delta lobe get weight)
     ("bdpt-camera-delta-vertex-keeps-dvcm", _BDPT,
@@ -39,8 +39,8 @@ MUTANTS = [
      "        ctx = mi.BSDFContext()\n        emitter, ray, beta", _T),
     # light-tracing splats not divided by the pixel's filter mass (wrong with a gaussian filter)
     ("bdpt-splats-without-filter-mass", _BDPT,
-     "out = data + dr.select((c < 3) & (f > 0), add * w / dr.select(f > 0, f, 1.0), 0.0)",
-     "out = data + dr.select((c < 3) & (f > 0), add * w, 0.0)", _T),
+     "out = data + dr.select(colour & (f > 0), add * w / dr.select(f > 0, f, 1.0), 0.0)",
+     "out = data + dr.select(colour & (f > 0), add * w, 0.0)", _T),
     # a delta light's direction density left out of next-event estimation's ratio
     ("bdpt-delta-light-direction-pdf", _BDPT,
      "dir_pdf_l * cos_z * safe_div(1.0, dr.square(ds_l.dist))",

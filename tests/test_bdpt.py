@@ -125,6 +125,49 @@ def test_scenes_same_image_as_path(name):
     assert_unbiased(scene, ref, {"type": "bdpt", "max_depth": 6}, batches=BATCHES, spp=2048)
 
 
+# ---- strategy images -------------------------------------------------------------------------
+def strategy_parts(images, n):
+    """(batches, H, W, n, 3) strategy layers of renders with strategy_images (film: RGB)."""
+    return images[..., 3:].reshape(*images.shape[:3], n, 3)
+
+
+def test_strategy_images_sum_to_the_image():
+    from integrators.plugins.bdpt import strategy_list
+    scene = cornell(res=8)
+    img = np.array(mi.render(scene, integrator=mi.load_dict(
+        {"type": "bdpt", "max_depth": 4, "strategy_images": True}), spp=16, seed=2))
+    plain = np.array(mi.render(scene, integrator=mi.load_dict({"type": "bdpt", "max_depth": 4}),
+                               spp=16, seed=2))
+    parts = strategy_parts(img[None], len(strategy_list(4)))[0]
+    assert img.shape[-1] == 3 + 3 * len(strategy_list(4))
+    assert np.allclose(parts.sum(-2), img[..., :3], rtol=1e-4, atol=1e-6)
+    assert np.allclose(img[..., :3], plain, rtol=1e-4, atol=1e-6)
+
+
+def test_each_unweighted_strategy_estimates_its_path_length():
+    """Where every strategy can produce every path (diffuse box, area light, pinhole), each
+    unweighted strategy image of path length k has the expected image of all paths of length
+    k, which is the sum of the MIS-weighted strategy images of length k; so the unweighted
+    images of one length sum to (k + 1) x that (the check of the MIS weights' partition of
+    unity and of every strategy's own estimate).  Image tests per strategy (k = 2, 3)."""
+    from integrators.plugins.bdpt import strategy_list
+    scene = cornell(res=8)
+    names = strategy_list(3)
+    un = strategy_parts(testing.batch_images(scene, mi.load_dict(
+        {"type": "bdpt", "max_depth": 3, "heuristic": "none", "strategy_images": True}),
+        batches=BATCHES, spp=2 * SPP, seed0=1_000), len(names))
+    mis = strategy_parts(testing.batch_images(scene, mi.load_dict(
+        {"type": "bdpt", "max_depth": 3, "strategy_images": True}),
+        batches=BATCHES, spp=2 * SPP, seed0=2_000), len(names))
+    for k in (2, 3):
+        idx = [j for j, (s, t) in enumerate(names) if s + t - 1 == k]
+        assert len(idx) == k + 1
+        ref = mis[..., idx, :].sum(-2)
+        for j in idx:
+            r = testing.image_test(un[..., j, :], ref)
+            assert r.passed, (names[j], r)
+
+
 def test_negative_control_one_bounce_short():
     """The comparison sees a missing bounce: bdpt at max_depth 4 against path at 5."""
     scene = cornell()

@@ -70,17 +70,23 @@ class BDPT(IntegratorTemplate):
               doc="Longest path depth in segments (1: emitters seen directly; finite: light "
                   "vertices are stored per depth)."),
         *roulette.RR_PARAMS,
-        Param("heuristic", "choice", "power", choices=("balance", "power"),
-              doc="MIS weighting over the (s, t) strategies."),
+        Param("heuristic", "choice", "power", choices=("balance", "power", "none"),
+              doc="MIS weighting over the (s, t) strategies (none: every strategy weighted 1, "
+                  "an image of (number of strategies) x each path length: for checking the "
+                  "strategies with strategy_images)."),
         Param("beta", "float", 2.0, min=0.0, min_exclusive=True,
               doc="Exponent of the power heuristic."),
         Param("light_selection", "choice", "power", choices=("uniform", "power"),
               doc="Discrete pdf for choosing the light of a light subpath and of a light "
                   "sample."),
+        Param("strategy_images", "bool", False,
+              doc="Also write the weighted contribution of every strategy (s, t) as AOV "
+                  "layers s<s>_t<t>.R/G/B (their sum is the image)."),
     )
 
     def setup(self):
-        self.mis = Mis(self.heuristic, self.beta)
+        self.mis = Mis("balance" if self.heuristic == "none" else self.heuristic, self.beta)
+        self.strategies = strategy_list(self.max_depth) if self.strategy_images else []
         self.rr = roulette.Roulette.from_params(self.params)
         self.lights = light_selection.SelectionCache(self.light_selection)
         self._tables = (None, None)
@@ -111,6 +117,24 @@ class BDPT(IntegratorTemplate):
                 raise SceneError(f"{name}: area emitter on shape '{shape.id()}' has a "
                                  "spatially varying radiance; allowed: constant radiance")
 
+    def aov_names(self):
+        return [f"s{s_}_t{t}.{c}" for s_, t in self.strategies for c in "RGB"]
+
+    def weight(self, denominator):
+        """The MIS weight 1 / denominator (1 with heuristic none)."""
+        if self.heuristic == "none":
+            return mi.Float(1.0)
+        return finite_weight(denominator)
+
+    def record(self, sbuf, lane, sid, value, active):
+        """Add ``value`` to strategy ``sid``'s image of this lane (strategy_images)."""
+        if sbuf is None:
+            return
+        rgb = _to_rgb(value)
+        n = len(self.strategies)
+        for c in range(3):
+            dr.scatter_add(sbuf.a, rgb[c], (lane * n + sid) * 3 + c, active)
+
     def tables(self, scene):
         if self._tables[0] is not scene:
             self._tables = (scene, EmitterTables(scene))
@@ -128,7 +152,7 @@ class BDPT(IntegratorTemplate):
         self.check_support(scene, sensor)
         film = sensor.film()
         spp = int(spp) or int(sensor.sampler().sample_count())
-        film.prepare([])
+        film.prepare(self.aov_names())
         block = film.create_block()
         block.set_offset(film.crop_offset())
         block_lt = film.create_block(mi.ScalarVector2u(0), False, False)
@@ -149,7 +173,8 @@ class BDPT(IntegratorTemplate):
             self.render_chunk(scene, sensor, sel, block, block_lt, n, spp, chunk_seed, cap)
             done += n
             chunk += 1
-        combined = _combine(block, block_lt, _filter_mass(film))
+        base = 5 if mi.has_flag(film.flags(), mi.FilmFlags.Alpha) else 4
+        combined = _combine(block, block_lt, _filter_mass(film), base)
         film.put_block(mi.ImageBlock(combined, film.crop_offset(), film.rfilter(),
                                      False, False))
         if not develop:
@@ -171,6 +196,10 @@ class BDPT(IntegratorTemplate):
         lane = dr.arange(mi.UInt32, lanes)
         tables = self.tables(scene)
         store = VertexStore(lanes, cap)
+        n_strat = len(self.strategies)
+        # per lane and strategy (strategy_images), held in a plain object so that the
+        # symbolic loops do not take the scattered-to array as loop state
+        sbuf = _Buffer(dr.zeros(mi.Float, lanes * n_strat * 3)) if n_strat else None
 
         # 1. light subpaths: stored vertices, light tracing onto the film (t = 1)
         pinhole = _is_pinhole(sensor)
@@ -186,12 +215,16 @@ class BDPT(IntegratorTemplate):
 
         # 2. camera subpaths: s = 0, s = 1 and the connections s, t >= 2
         ray, weight, pos = _camera_rays(sensor, sampler, spp)
-        L, valid = self.camera_walk(scene, sel, tables, sensor, sampler, store, lane, ray)
+        L, valid = self.camera_walk(scene, sel, tables, sensor, sampler, store, lane, ray, sbuf)
         rgb = _to_rgb(L * weight)
         values = [rgb[0], rgb[1], rgb[2]]
         if mi.has_flag(film.flags(), mi.FilmFlags.Alpha):
             values.append(dr.select(valid, mi.Float(1.0), mi.Float(0.0)))
         values.append(mi.Float(1.0))
+        if n_strat:
+            dr.eval(sbuf.a)
+            values += [dr.gather(mi.Float, sbuf.a, lane * (n_strat * 3) + j)
+                       for j in range(n_strat * 3)]
         block.put(pos, values)
         dr.eval(block.tensor())
 
@@ -200,6 +233,7 @@ class BDPT(IntegratorTemplate):
         mis, max_depth = self.mis, self.max_depth
         alpha = mi.has_flag(sensor.film().flags(), mi.FilmFlags.Alpha)
         offset = mi.Vector2f(block_lt.offset())
+        n_strat = len(self.strategies)
 
         def splat(si, bsdf, beta, dvcm, dvc, depth, active):
             ctx = mi.BSDFContext(mi.TransportMode.Importance)
@@ -211,18 +245,22 @@ class BDPT(IntegratorTemplate):
             f = bsdf.eval(ctx, si, wo, active) * shading_correction(si, ds.d)
             p_rev = reverse_pdf(bsdf, ctx, si, wo, active)
             p_cam = mi.unpolarized_spectrum(w_s)[0] * dr.abs(dr.dot(si.n, ds.d))
-            w = finite_weight(1.0 + mis(p_cam) * (dvcm + dvc * mis(p_rev)))
+            w = self.weight(1.0 + mis(p_cam) * (dvcm + dvc * mis(p_rev)))
             value = beta * f * w_s * (w * scale)
             active &= dr.any(value != 0)
             active &= ~scene.ray_test(si.spawn_ray_to(ds.p), active)
             rgb = _to_rgb(value)
             vals = [rgb[0], rgb[1], rgb[2]] + ([mi.Float(0.0)] if alpha else []) + \
                 [mi.Float(0.0)]
+            if n_strat:                       # s = depth + 1, t = 1
+                sid = strategy_id(depth + 1, depth + 1)
+                vals += [dr.select(sid == j, rgb[c], 0.0) for j in range(n_strat)
+                         for c in range(3)]
             block_lt.put(ds.uv + offset, vals, active)
         return splat
 
     @dr.syntax
-    def camera_walk(self, scene, sel, tables, sensor, sampler, store, lane, ray):
+    def camera_walk(self, scene, sel, tables, sensor, sampler, store, lane, ray, sbuf=None):
         mis, max_depth = self.mis, self.max_depth
         pinhole = _is_pinhole(sensor)
         ctx = mi.BSDFContext()
@@ -270,8 +308,9 @@ class BDPT(IntegratorTemplate):
             direct_a = pick * p_nee * cos_in * safe_div(1.0, dist2)
             emission_w = pick * pos_pdf * cos_in * dr.inv_pi
             w0 = dr.select(first, 1.0,
-                           finite_weight(1.0 + mis(direct_a) * dvcm + mis(emission_w) * dvc))
+                           self.weight(1.0 + mis(direct_a) * dvcm + mis(emission_w) * dvc))
             L += dr.select(hit_light, beta * le * w0, 0.0)
+            self.record(sbuf, lane, strategy_id(0, depth), beta * le * w0, hit_light)
 
             bsdf = si.bsdf(ray)
             smooth = hit & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
@@ -283,7 +322,9 @@ class BDPT(IntegratorTemplate):
             vis = nee & dr.any(w_em != 0)
             vis &= ~scene.ray_test(si.spawn_ray_to(ds_l.p), vis)
             wo_l = si.to_local(ds_l.d)
-            f_l, p_fwd_l = bsdf.eval_pdf(ctx, si, wo_l, vis)
+            # one BSDF call evaluates the light sample's direction and samples the continuation
+            f_l, p_fwd_l, bs, w = bsdf.eval_pdf_sample(ctx, si, wo_l, sampler.next_1d(hit),
+                                                       sampler.next_2d(hit), hit)
             p_rev_l = reverse_pdf(bsdf, ctx, si, wo_l, vis)
             is_area_l, pos_pdf_l, dir_pdf_l = tables.lookup(ds_l.emitter, vis)
             pick_l = sel.pmf(ds_l.emitter, vis)
@@ -293,15 +334,15 @@ class BDPT(IntegratorTemplate):
                               dir_pdf_l * cos_z * safe_div(1.0, dr.square(ds_l.dist)))
             w_light = dr.select(ds_l.delta, 0.0, mis(safe_div(p_fwd_l, ds_l.pdf)))
             w_cam = mis(ratio) * (dvcm + dvc * mis(p_rev_l))
-            w1 = finite_weight(w_light + 1.0 + w_cam)
+            w1 = self.weight(w_light + 1.0 + w_cam)
             L += dr.select(vis, beta * f_l * w_em * w1, 0.0)
+            self.record(sbuf, lane, strategy_id(1, depth + 1), beta * f_l * w_em * w1, vis)
 
             # s >= 2, t >= 2: connections to the stored light vertices
             conn = smooth & (depth + 2 <= max_depth)
-            L += self.connect(scene, store, lane, si, bsdf, beta, dvcm, dvc, depth, conn)
+            L += self.connect(scene, store, lane, si, bsdf, beta, dvcm, dvc, depth, conn, sbuf)
 
-            # continue: BSDF sample in radiance mode
-            bs, w = bsdf.sample(ctx, si, sampler.next_1d(hit), sampler.next_2d(hit), hit)
+            # continue with the BSDF sample drawn above (radiance mode)
             spec = is_delta_sample(bs)
             wo = si.to_world(bs.wo)
             p_rev = reverse_pdf(bsdf, ctx, si, bs.wo, hit & ~spec)
@@ -320,7 +361,7 @@ class BDPT(IntegratorTemplate):
         return L, valid
 
     @dr.syntax
-    def connect(self, scene, store, lane, si, bsdf, beta, dvcm, dvc, depth, active):
+    def connect(self, scene, store, lane, si, bsdf, beta, dvcm, dvc, depth, active, sbuf=None):
         """Sum over the stored light vertices y_k of the weighted connection z -- y_k."""
         mis, max_depth = self.mis, self.max_depth
         ctx = mi.BSDFContext()
@@ -347,13 +388,36 @@ class BDPT(IntegratorTemplate):
             cos_y = dr.abs(dr.dot(sy.n, dirn))
             w_light = mis(p_c * cos_y * inv_d2) * (dvcm_y + dvc_y * mis(p_y_rev))
             w_cam = mis(p_y * cos_c * inv_d2) * (dvcm + dvc * mis(p_c_rev))
-            w = finite_weight(w_light + 1.0 + w_cam)
+            w = self.weight(w_light + 1.0 + w_cam)
             contrib = beta * f_c * f_y * shading_correction(sy, -dirn) * beta_y * (w * inv_d2)
             ok &= dr.any(contrib != 0)
             ok &= ~scene.ray_test(si.spawn_ray_to(sy.p), ok)
             L += dr.select(ok, contrib, 0.0)
+            self.record(sbuf, lane, strategy_id(depth_y + 1, depth_y + depth + 1), contrib, ok)
             k += 1
         return L
+
+
+class _Buffer:
+    """An array the symbolic loops scatter to, kept out of their loop state."""
+
+    def __init__(self, a):
+        self.a = a
+
+
+def strategy_list(max_depth: int) -> list:
+    """The strategies (s, t) in image order: by path length k = s + t - 1 (segments), then s:
+    k = 1: (0, 2) only (s = 1, t = 1 is not used); k >= 2: s = 0 .. k."""
+    out = [(0, 2)] if max_depth >= 1 else []
+    for k in range(2, max_depth + 1):
+        out += [(s, k + 1 - s) for s in range(k + 1)]
+    return out
+
+
+def strategy_id(s, k):
+    """Index of strategy (s, t = k + 1 - s) in :func:`strategy_list` (k = path length)."""
+    k = mi.UInt32(k)
+    return dr.select(k <= 1, 0, (k * (k + 1)) // 2 - 2 + mi.UInt32(s))
 
 
 def _is_pinhole(sensor) -> bool:
@@ -414,7 +478,7 @@ def _filter_mass(film, n: int = 8):
     return blk.tensor()
 
 
-def _combine(block, block_lt, mass):
+def _combine(block, block_lt, mass, base):
     """The camera block with the light-tracing sums added to its colour channels: each pixel's
     splat sum divided by its filter mass F_j (so that it estimates the same filtered pixel
     value as the camera samples' weighted mean), times the pixel's camera weight (which the
@@ -423,13 +487,14 @@ def _combine(block, block_lt, mass):
     lt = block_lt.tensor()
     shape = t.shape
     ch = shape[2]
-    w_idx = ch - 1                       # ... [A] W (no AOVs)
+    w_idx = base - 1                     # R G B [A] W, then the AOVs
     data = t.array
     idx = dr.arange(mi.UInt32, dr.width(data))
     c = idx % ch
     pix = idx // ch
     w = dr.gather(mi.Float, data, pix * ch + w_idx)
-    add = dr.gather(mi.Float, lt.array, pix * lt.shape[2] + c, c < 3)
-    f = dr.gather(mi.Float, mass.array, pix, c < 3)
-    out = data + dr.select((c < 3) & (f > 0), add * w / dr.select(f > 0, f, 1.0), 0.0)
+    colour = (c < 3) | (c >= base)
+    add = dr.gather(mi.Float, lt.array, pix * lt.shape[2] + c, colour)
+    f = dr.gather(mi.Float, mass.array, pix, colour)
+    out = data + dr.select(colour & (f > 0), add * w / dr.select(f > 0, f, 1.0), 0.0)
     return mi.TensorXf(out, shape)
