@@ -334,17 +334,24 @@ def test_unbiased_mixed_against_power():
 
 
 def test_light_field_scene_renders():
-    """The benchmark's generated scene: bvh beats power on it (the same relMSE test as the
-    benchmark, a small instance), and the image means agree."""
-    scene = mi.load_dict(field.scene_dict(256, res=16, spp=64))
+    """The benchmark's generated scene (64 lights, 16x16 pixels): bvh has lower per-pixel
+    variance than power (H0: median over lit pixels of log(var_power / var_bvh) <= 0, one-sided
+    Wilcoxon signed-rank over them, 8 renders each, rejected at alpha = 1e-4: the test
+    asserts the rejection), and the image means agree to 10 % (a smoke check: unbiasedness
+    is tested against closed forms above)."""
+    from scipy import stats
+    scene = mi.load_dict(field.scene_dict(64, res=16, spp=64))
     imgs = {}
     for s in ("power", "bvh"):
         integ = mi.load_dict({"type": "nee_path", "max_depth": 2, "light_selection": s,
                               "hide_emitters": True})
-        imgs[s] = np.stack([np.array(mi.render(scene, integrator=integ, seed=k))
+        imgs[s] = np.stack([np.array(mi.render(scene, integrator=integ, seed=k))[..., 0]
                             for k in range(8)])
-    var = {s: v.var(axis=0).mean() for s, v in imgs.items()}
-    assert var["bvh"] < var["power"]
+    var = {s: v.var(axis=0, ddof=1).ravel().astype(np.float64) for s, v in imgs.items()}
+    lit = (var["power"] > 0) & (var["bvh"] > 0)          # the sky above the floor is black
+    assert lit.sum() > 100
+    ratio = np.log(var["power"][lit] / var["bvh"][lit])
+    assert stats.wilcoxon(ratio, alternative="greater").pvalue < 1e-4, np.median(ratio)
     m = {s: v.mean() for s, v in imgs.items()}
     assert m["bvh"] == pytest.approx(m["power"], rel=0.1)
 
