@@ -76,6 +76,19 @@ def cornell():
     return mi.load_file(str(ROOT / "scenes" / "cornell_box.xml"), res="16")
 
 
+def test_same_image_as_mitsuba_path_small():
+    """The default-suite version, for gross errors only: an 8x8 Cornell box (four 4x4 blocks)
+    with random factors in [0.3, 3], where each lane's camera sample must survive compaction and
+    splitting (a lane given another's sample moves whole pixel values between blocks).  The
+    noise guard is relaxed to 1.5 % (a 15 % error gives |t| >= 10); the 0.5 % check of
+    unbiasedness against path is the slow test below and the closed-box tests."""
+    scene = mi.load_file(str(ROOT / "scenes" / "cornell_box.xml"), res="8")
+    it = ears(max_depth=8)
+    it.forced_factor = splitting.random_factors(0.3, 3.0)
+    assert_unbiased(scene, {"type": "path", "max_depth": 8}, it, spp=256, batches=16,
+                    max_rel_se=0.015)
+
+
 @pytest.mark.slow
 def test_same_image_as_mitsuba_path(cornell):
     it = ears(max_depth=8)
@@ -164,10 +177,11 @@ def test_state_lives_across_passes_of_progressive_render():
     assert acc.spp == 64 and acc.passes > 1 and np.isfinite(acc.mean()).all()
     it = scene.integrator()
     assert it.ears.passes == acc.passes and it.ears.learned
+    ref = np.array(mi.render(scene, integrator=mi.load_dict({"type": "path"}), spp=512))
+    assert abs(acc.mean().mean() / ref.mean() - 1) < 0.05      # about 10 standard errors
     acc = progressive.render(scene, time_budget=1.0, seed=1000)
     assert acc.passes >= 1 and np.isfinite(acc.mean()).all()
-    ref = np.array(mi.render(scene, integrator=mi.load_dict({"type": "path"}), spp=512))
-    assert abs(acc.mean().mean() / ref.mean() - 1) < 0.1
+    assert it.ears.passes >= 8 + acc.passes             # the state lived on
 
 
 def test_stats_count_rays():

@@ -69,7 +69,7 @@ from ..common import depth_limit, lnot, luminance, safe_div
 from .learning import RegionGrid
 
 #: bounces whose vertices keep records (statistics of L_r and cost per region)
-LEARN_DEPTH = 6
+LEARN_DEPTH = 3
 #: copies a region needs before its learned factors replace the throughput rule
 MIN_VISITS = 32
 #: resolutions of the fine and the coarse grid (cells along the scene's longest side)
@@ -323,7 +323,8 @@ class Wavefront:
         self._next = None
         self._cont = 0
         state = self.replicate(dict(si=si, beta=beta, eta=eta, depth=depth, sid=sid,
-                                    pixel=pixel, hist=[]), n, u, cell, alive, recs, learn)
+                                    pixel=pixel, hist=[], acc=[]), n, u, cell, alive, recs,
+                               learn)
         bounce = 0
         while state is not None:
             bounce += 1
@@ -332,20 +333,19 @@ class Wavefront:
             hist = state["hist"]
             dr.scatter_reduce(dr.ReduceOp.Add, self.L, c, state["sid"], mode=DIRECT)
             dr.scatter_reduce(dr.ReduceOp.Add, cost, k, state["sid"], mode=DIRECT)
-            if learn:
-                lc = luminance(c)
-                for r, hh in zip(recs, hist):
-                    dr.scatter_reduce(dr.ReduceOp.Add, r["S"], lc, hh, mode=DIRECT)
-                    dr.scatter_reduce(dr.ReduceOp.Add, r["R"], k, hh, mode=DIRECT)
+            # what this lane added since each of its records was made (flushed to the records
+            # when the lane ends or splits: one scatter per segment of a path, not per bounce)
+            lc = luminance(c)
+            acc = [(a + lc, b + k) for a, b in state["acc"]]
             u = sampler.next_1d()
             n, cell = ears.factor(si, beta, eta, depth, state["pixel"], sampler, alive)
             # one kernel: what the next wavefront gathers, and the scattered contributions
-            dr.eval(self._next, beta, eta, depth, alive, n, u, cell, self.L, cost,
-                    *[(r["S"], r["R"]) for r in recs])
+            dr.eval(self._next, beta, eta, depth, alive, n, u, cell, self.L, cost, acc)
             self.stats["continuation_rays"] += state["width"]
             self._cont += state["width"]
             state = self.replicate(dict(si=si, beta=beta, eta=eta, depth=depth,
-                                        sid=state["sid"], pixel=state["pixel"], hist=hist),
+                                        sid=state["sid"], pixel=state["pixel"], hist=hist,
+                                        acc=acc),
                                    n, u, cell, alive, recs, learn and bounce < LEARN_DEPTH)
         self.stats["bounces"] = max(self.stats["bounces"], bounce)
         # the cost of a bounce is 1 + SHADOW_COST per shadow ray: count them from it
@@ -404,8 +404,14 @@ class Wavefront:
         ns = n * dr.opaque(mi.Float, s)
         counts = mi.UInt32(dr.floor(ns + u))
         counts = dr.select(alive & (ns > 0), counts, 0)
+        # a lane that ends or splits hands what it added to its records (see batch)
+        flush = counts != 1
+        for r, hh, (a, b) in zip(recs, st["hist"], st["acc"]):
+            dr.scatter_reduce(dr.ReduceOp.Add, r["S"], a, hh, flush, mode=DIRECT)
+            dr.scatter_reduce(dr.ReduceOp.Add, r["R"], b, hh, flush, mode=DIRECT)
         parents = dr.compress(counts > 0)
         if dr.width(parents) == 0:
+            dr.eval([(r["S"], r["R"]) for r in recs])
             return None
         cnt = dr.gather(mi.UInt32, counts, parents)
         first = dr.prefix_sum(cnt)                    # exclusive: each parent's first slot
@@ -423,6 +429,10 @@ class Wavefront:
                    sid=dr.gather(mi.UInt32, st["sid"], idx),
                    pixel=dr.gather(mi.UInt32, st["pixel"], idx),
                    hist=[dr.gather(mi.UInt32, hh, idx) for hh in st["hist"]])
+        # a lane that went on alone keeps its sums; the copies of a split start from zero
+        alone = dr.gather(mi.UInt32, counts, idx) == 1
+        out["acc"] = [(dr.gather(mi.Float, a, idx, alone), dr.gather(mi.Float, b, idx, alone))
+                      for a, b in st["acc"]]
         if self._next is not None:               # after a bounce: the ray and its hit
             ray, pi = self._next
             out["ray"] = dr.gather(mi.Ray3f, ray, idx)
@@ -435,5 +445,6 @@ class Wavefront:
                              cell=tuple(dr.gather(mi.UInt32, c, idx) for c in cell),
                              blum=luminance(beta)))
             out["hist"].append(dr.arange(mi.UInt32, total))
+            out["acc"].append((dr.zeros(mi.Float, total), dr.zeros(mi.Float, total)))
         # the gathers run inside the next bounce's kernel (nothing is evaluated here but idx)
         return out

@@ -1,0 +1,36 @@
+"""Mutants of nee_path rr=adaptive (EARS roulette and splitting with path replication; see
+tests/mutation.py for the format).  Each plants one plausible bug in the replication or the
+weights; tests/test_ears.py must fail for every one (``python tests/mutation.py --only NAME``)."""
+
+_S = "integrators/sampling/splitting.py"
+_T = ["test_ears.py"]
+
+MUTANTS = [
+    # each copy weighted 1/ceil(n): roulette uncompensated, splits under-weighted
+    ("ears-copy-weight-ceil", _S,
+     "    return safe_div(1.0, n)\n", "    return safe_div(1.0, dr.ceil(n))\n", _T),
+    # stochastic rounding biased towards floor(n): fewer copies than n on average
+    ("ears-rounding-biased", _S,
+     "counts = mi.UInt32(dr.floor(ns + u))", "counts = mi.UInt32(dr.floor(ns + 0.8 * u))", _T),
+    # the weight forgets the lane cap's scale s (copies counted with s n, weighted 1/n)
+    ("ears-cap-scale-not-in-weight", _S,
+     'beta = dr.gather(mi.Spectrum, st["beta"] * copy_weight(ns), idx)',
+     'beta = dr.gather(mi.Spectrum, st["beta"] * copy_weight(n), idx)', _T),
+    # a copy's camera sample taken from the compressed parent list instead of the lane:
+    # contributions land in other pixels
+    ("ears-sample-index-of-rank", _S,
+     'sid=dr.gather(mi.UInt32, st["sid"], idx),',
+     'sid=dr.gather(mi.UInt32, st["sid"], rank),', _T),
+    # emission found by the continuation weighted with the throughput before the BSDF sample
+    ("ears-emission-old-throughput", _S,
+     "c += dr.select(act, beta * L_w, 0.0)", 'c += dr.select(act, st["beta"] * L_w, 0.0)', _T),
+    # one bounce too many (max_depth off by one)
+    ("ears-depth-limit-off-by-one", _S,
+     "alive = act & si_n.is_valid() & (depth + 1 < limit)",
+     "alive = act & si_n.is_valid() & (depth < limit)", _T),
+    # contributions written instead of added: the copies of a camera sample overwrite each
+    # other (and the first hit's emission)
+    ("ears-contribution-overwrites", _S,
+     'dr.scatter_reduce(dr.ReduceOp.Add, self.L, c, state["sid"], mode=DIRECT)',
+     'dr.scatter(self.L, c, state["sid"])', _T),
+]
