@@ -320,8 +320,13 @@ def step(evaluate, st: "ChainState", ids, image, scale, large_step: float, sigma
     pix_c = dr.gather(mi.UInt32, st.pix, ids)
     pos_c = lum_c > 0
     a = dr.select(pos_c, dr.minimum(1.0, lum / dr.select(pos_c, lum_c, 1.0)), 1.0)
-    w_c = dr.select(pos_c, (1.0 - a) * scale / dr.select(pos_c, lum_c, 1.0), 0.0)
-    w_p = dr.select(lum > 0, a * scale / dr.select(lum > 0, lum, 1.0), 0.0)
+    # Kelemen's weights: the Metropolis samples (density I/b per mutation) and the large-step
+    # proposals (independent uniform samples, density p_large per mutation) combined by the
+    # balance heuristic: f / (I/b + p_large) each, i.e. f b / (I + p_large b) before the
+    # final factor b
+    pb = dr.opaque(mi.Float, large_step * st.b)
+    w_c = dr.select(pos_c, (1.0 - a) * scale / (lum_c + pb), 0.0)
+    w_p = dr.select(lum > 0, (a + dr.select(large, 1.0, 0.0)) * scale / (lum + pb), 0.0)
     splat(image, pix_c, rgb_c * w_c, w_c > 0)
     splat(image, pix, rgb * w_p, w_p > 0)
     accept = ps.uniform(ids, ps.stream(k, ps.STREAM_ACCEPT)) < a
