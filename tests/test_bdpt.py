@@ -112,8 +112,8 @@ def test_glass_mirror_glossy_same_image_as_path():
 def test_caustic_scene_same_image_as_path():
     scene = mi.load_file("scenes/caustic.xml", res=8)
     ref = testing.batch_images(scene, mi.load_dict({"type": "path", "max_depth": 6}),
-                               batches=BATCHES, spp=16384, seed0=80_000)
-    assert_unbiased(scene, ref, {"type": "bdpt", "max_depth": 6}, batches=BATCHES, spp=2048)
+                               batches=BATCHES, spp=65536, seed0=80_000)
+    assert_unbiased(scene, ref, {"type": "bdpt", "max_depth": 6}, batches=BATCHES, spp=4096)
 
 
 @pytest.mark.slow
@@ -121,8 +121,8 @@ def test_caustic_scene_same_image_as_path():
 def test_scenes_same_image_as_path(name):
     scene = mi.load_file(f"scenes/{name}.xml", res=8)
     ref = testing.batch_images(scene, mi.load_dict({"type": "path", "max_depth": 6}),
-                               batches=BATCHES, spp=8192, seed0=90_000)
-    assert_unbiased(scene, ref, {"type": "bdpt", "max_depth": 6}, batches=BATCHES, spp=2048)
+                               batches=BATCHES, spp=65536, seed0=90_000)
+    assert_unbiased(scene, ref, {"type": "bdpt", "max_depth": 6}, batches=BATCHES, spp=4096)
 
 
 # ---- strategy images -------------------------------------------------------------------------

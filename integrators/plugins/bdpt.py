@@ -368,6 +368,8 @@ class BDPT(IntegratorTemplate):
         ctx_l = mi.BSDFContext(mi.TransportMode.Importance)
         L = mi.Spectrum(0.0)
         n = dr.gather(mi.UInt32, store.count, lane, active)
+        # stored vertex k lies at depth >= k + 1: only k <= max_depth - depth - 2 can connect
+        n = dr.minimum(n, dr.select(depth + 1 < max_depth, max_depth - 1 - depth, 0))
         k = mi.UInt32(0)
         while dr.hint(active & (k < n), label="bdpt connections"):
             act = active & (k < n)
