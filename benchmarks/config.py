@@ -51,18 +51,18 @@ PATH_METHODS = (
            {"type": "nee_path", "max_depth": PATH_DEPTH, "light_selection": "adaptive"},
            "our `nee_path`, adaptive light selection (per-point irradiance bound)"),
     Method("mis3", "path", {"type": "mis3", "max_depth": PATH_DEPTH},
-           "our `mis3` with its defaults (the lecture's p-vector 1/3 each: a light sample with "
-           "probability 1/3, every path continues), balance heuristic"),
+           "our `mis3` with its defaults: the BSDF's own sample continues every path, the "
+           "light-sample allocation (probability below one, expected count up to 4 above) "
+           "learned per region from the render's own first eighth of samples (learning is in "
+           "the time), adaptive light selection, balance heuristic"),
+    Method("mis3_fixed", "path",
+           {"type": "mis3", "max_depth": PATH_DEPTH, "selection": "fixed"},
+           "our `mis3` with the lecture's p-vector 1/3 each (a light sample with probability "
+           "1/3, a lobe by the rest; every path continues), balance heuristic"),
     Method("mis3_adaptive", "path",
            {"type": "mis3", "max_depth": PATH_DEPTH, "selection": "adaptive"},
            "our `mis3` (one-sample MIS over cosine lobe, glossy lobe and light), technique "
            "probabilities adapted per vertex, balance heuristic"),
-    Method("mis3_learned", "path",
-           {"type": "mis3", "max_depth": PATH_DEPTH, "selection": "learned",
-            "light_selection": "adaptive"},
-           "our `mis3`, light-sample probability learned per region over the passes (each "
-           "budget's renders continue learning: learning passes are in the time), adaptive "
-           "light selection"),
     Method("bsdf_path", "path", {"type": "bsdf_path", "max_depth": PATH_DEPTH},
            "our `bsdf_path`, BSDF sampling only (no light sampling)"),
     Method("bdpt", "path", {"type": "bdpt", "max_depth": PATH_DEPTH},

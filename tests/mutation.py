@@ -129,11 +129,11 @@ MUTANTS = [
      "pi1 = safe_div(p1, p1 + p2)\n", "pi1 = safe_div(p1, p1 + p2 + p3)\n",
      ["test_mis3_continuation.py", "test_mis3.py"]),
     ("stochastic-nee-not-divided", "integrators/sampling/vertex.py",
-     "L = safe_div(self.light_term(ls, f_l, [self.n_b * pdf_l], p_light), p_light)",
-     "L = self.light_term(ls, f_l, [self.n_b * pdf_l], p_light)",
+     "L = safe_div(self.light_term(ls, f_l, [self.n_b * pdf_l], scale), scale)",
+     "L = self.light_term(ls, f_l, [self.n_b * pdf_l], scale)",
      ["test_mis3_learned.py"]),
     ("learned-emission-weight-without-p", "integrators/sampling/vertex.py",
-     "scale = p_l if learn else None", "scale = None", ["test_mis3_learned.py"]),
+     "scale = d.light_scale if learn else None", "scale = None", ["test_mis3_learned.py"]),
 ]
 
 

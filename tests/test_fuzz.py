@@ -318,7 +318,7 @@ OURS = {
                                  "light_selection": "uniform", "heuristic": "balance"},
     "nee_path-adaptive": {"type": "nee_path", "light_selection": "adaptive",
                           "light_samples": 2},
-    "mis3-fixed": {"type": "mis3"},
+    "mis3-fixed": {"type": "mis3", "selection": "fixed"},
     "mis3-adaptive": {"type": "mis3", "selection": "adaptive"},
 }
 

@@ -60,7 +60,7 @@ def veach_path(veach):
                                 batches=16, spp=1024, seed0=500)
 
 
-@pytest.mark.parametrize("selection", ["fixed", "adaptive"])
+@pytest.mark.parametrize("selection", ["learned", "fixed", "adaptive"])
 def test_demo_same_image_as_mitsuba_path(veach, veach_path, selection):
     # no power guard (max_rel_se=None): the demo's blocks are too noisy at this budget
     assert_unbiased(veach, veach_path, {"type": "mis3", "max_depth": 4, "selection": selection},
@@ -74,3 +74,21 @@ def test_negative_control_weights_summing_to_105(monkeypatch):
     r = check_unbiased(closed_box_scene(0.5, 1.0), testing.closed_sphere_radiance(1.0, 0.5, 3),
                        {"type": "mis3", "max_depth": 3}, batches=32, spp=4096)
     assert not r.passed, r
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("selection", ["learned", "fixed"])
+def test_veach_regions_no_half_percent_bias(selection):
+    """Issue 14's report: on Veach's plates (sphere lights, max_depth 3) mis3 read about 1 % low
+    in one region against Mitsuba's path.  H0: the same expected image, per 9 x 9 block (15
+    regions) and channel, Welch t on 32 batches of 8192 spp each side, Sidak over the 45 tests
+    at alpha DEFAULT_ALPHA (false-failure rate 1.5e-5).  The median block's relative s.e. must
+    be below 0.1 %, so a 0.5 % bias in a region is t > 5 and rejected (measured on main: median
+    relative s.e. 0.08 %, image means within 0.1 %: no bias; the earlier reading was the tail of
+    the 1/p(3) weights, gone since every path continues and learned p(3) never drops below
+    what the samples support)."""
+    scene = mi.load_file(str(ROOT / "scenes" / "veach_mis.xml"), width="48", height="27")
+    ref = testing.batch_images(scene, mi.load_dict({"type": "path", "max_depth": 3}),
+                               batches=32, spp=8192, seed0=900)
+    assert_unbiased(scene, ref, {"type": "mis3", "max_depth": 3, "selection": selection},
+                    batches=32, spp=8192, block=9, max_rel_se=0.001)

@@ -78,7 +78,8 @@ def reference(scene, depth):
 
 
 OURS = {
-    "mis3-fixed": ({"type": "mis3", "max_depth": DEPTH}, DEPTH),
+    "mis3-fixed": ({"type": "mis3", "max_depth": DEPTH, "selection": "fixed"}, DEPTH),
+    "mis3": ({"type": "mis3", "max_depth": DEPTH}, DEPTH),
     "mis3-adaptive": ({"type": "mis3", "max_depth": DEPTH, "selection": "adaptive"}, DEPTH),
     "nee_path": ({"type": "nee_path", "max_depth": DEPTH}, DEPTH),
     "direct_mis": ({"type": "direct_mis", "light_samples": 1, "bsdf_samples": 1}, 2),

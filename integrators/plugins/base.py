@@ -23,6 +23,8 @@ class IntegratorTemplate:
     def __init__(self, props):
         self._base.__init__(self, props)
         self.params = read(self.NAME, self.PARAMS, props)
+        #: the parameters the scene (or dict) set explicitly
+        self.given = frozenset(props.keys())
         for k, v in self.params.items():
             setattr(self, k, v)
         self.setup()

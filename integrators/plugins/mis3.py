@@ -103,6 +103,11 @@ ONE = LEARNED_P.index(1.0)
 #: cost of a light sample (shadow ray, light and BSDF evaluation) relative to a vertex without
 #: one (measured: nee_path 0.089 s against bsdf_path 0.06 s per pass on veach_mis)
 LIGHT_COST = 0.5
+#: the rest of the path in the objective (variance x cost of the pixel estimate, not only of
+#: this vertex's direct light): its cost in vertex units, and its variance as a multiple of the
+#: direct estimate's variance at p(3) = 1
+LEARN_REST_COST = 1.0
+LEARN_REST_VAR = 0.0
 #: visits a region needs before its learned probability replaces the adaptive one
 LEARN_MIN_VISITS = 64
 #: non-zero light samples or emission hits a region needs before it leaves p(3) = 1
@@ -131,15 +136,23 @@ class MIS3(IntegratorTemplate):
         _prob("p_cosine", 1 / 3, "Weight of the cosine-lobe technique."),
         _prob("p_glossy", 1 / 3, "Weight of the glossy-lobe technique."),
         _prob("p_light", 1 / 3, "Weight of light sampling."),
-        Param("selection", "choice", "fixed", choices=SELECTIONS,
+        Param("selection", "choice", "learned", choices=SELECTIONS,
               doc="Technique probabilities: the fixed p-vector, adapted per vertex, or the "
-                  "light-sample probability learned per region from earlier passes."),
+                  "light-sample allocation learned per region from the render's own samples "
+                  "(the default; `fixed` when a p-vector is given without `selection`)."),
         dataclasses.replace(mis.PARAMS[0], default="balance"), *mis.PARAMS[1:],
-        light_selection.PARAM,
+        dataclasses.replace(light_selection.PARAM, default="adaptive"),
         MAX_DEPTH, *roulette.RR_PARAMS, HIDE_EMITTERS,
     )
 
     def setup(self):
+        p_given = sorted(self.given & {"p_cosine", "p_glossy", "p_light"})
+        if p_given and "selection" not in self.given:   # the lecture's p-vector, as asked
+            self.params["selection"] = self.selection = "fixed"
+        elif p_given and self.selection == "learned":
+            raise ParameterError(f"mis3: {', '.join(p_given)} given with selection='learned', "
+                                 "which learns the light-sample allocation and uses no p-vector; "
+                                 "allowed: selection='fixed' or 'adaptive' with a p-vector")
         total = self.p_cosine + self.p_glossy + self.p_light
         if not total > 0:
             raise ParameterError("mis3: p_cosine + p_glossy + p_light = 0; allowed: "
@@ -156,6 +169,7 @@ class MIS3(IntegratorTemplate):
         #: true once a pass changed the decisions of less than LEARN_SETTLED of the visits:
         #: later passes record nothing (no statistics in the kernel: the cost of learning ends)
         self.settled = False
+        self._quiet = False
         self._depth = 0
 
     # ---- selection=learned: the light-sample probability per region ------------------------
@@ -178,8 +192,12 @@ class MIS3(IntegratorTemplate):
                 first = int(total * LEARN_SHARE)
                 if first >= 1 and total - first >= 1:
                     img = self._pass(scene, sensor, seed, first, evaluate)
-                    rest = self._pass(scene, sensor, (int(seed) + 2 ** 31) % 2 ** 32,
-                                      total - first, evaluate)
+                    self._quiet = True    # the rest uses what was learned, records nothing
+                    try:
+                        rest = self._pass(scene, sensor, (int(seed) + 2 ** 31) % 2 ** 32,
+                                          total - first, evaluate)
+                    finally:
+                        self._quiet = False
                     return img * (first / total) + rest * ((total - first) / total)
         return self._pass(scene, sensor, seed, spp, evaluate, develop)
 
@@ -201,7 +219,7 @@ class MIS3(IntegratorTemplate):
             img = self._base.render(self, scene, sensor, seed, spp, develop, evaluate)
         finally:
             self._depth -= 1
-        if self.recording and self._depth == 0:
+        if self.recording and self._depth == 0:   # (the kernel recorded statistics)
             dr.eval(img)
             self.learn()
         return img
@@ -210,7 +228,7 @@ class MIS3(IntegratorTemplate):
     def recording(self) -> bool:
         """Whether the next pass records statistics (read when the kernel is traced)."""
         return bool(self.learned and self.learning and not self.settled and
-                    self.grid is not None)
+                    not self._quiet and self.grid is not None)
 
     def learn(self):
         """Per region, the candidate p(3) that minimises (variance of the direct-light estimate)
@@ -225,8 +243,8 @@ class MIS3(IntegratorTemplate):
         second = st[:, :k] / nn
         mean = (st[:, k] / nn[:, 0])[:, None]
         var = np.maximum(second - mean ** 2, 0.0) + 1e-6 * second.mean(axis=1, keepdims=True)
-        cost = 1.0 + LIGHT_COST * np.array(LEARNED_P)[None, :]
-        j = var * cost
+        cost = LEARN_REST_COST + LIGHT_COST * np.array(LEARNED_P)[None, :]
+        j = (var + LEARN_REST_VAR * var[:, ONE:ONE + 1]) * cost
         arg = np.argmin(j, axis=1)
         keep_one = j[np.arange(len(arg)), arg] > LEARN_MARGIN * j[:, ONE]
         best = np.where(keep_one, 1.0, np.array(LEARNED_P, dtype=np.float32)[arg])
