@@ -65,7 +65,7 @@ def test_specular_box_after_learning():
     scene = mi.load_file(str(ROOT / "scenes" / "specular_box.xml"), res="24")
     integ = mi.load_dict({**LEARNED, "max_depth": 6})
     for k in range(4):                                   # learn first
-        mi.render(scene, integrator=integ, spp=512, seed=10_000 + k)
+        mi.render(scene, integrator=integ, spp=2048, seed=10_000 + k)
     assert (integ.grid.table() > 0).any()
     ref = testing.batch_images(scene, mi.load_dict({"type": "path", "max_depth": 6}),
                                batches=16, spp=1024, seed0=777)
