@@ -5,8 +5,9 @@ primary_sample`) of the path contribution f(u) splatted at its film position (th
 coordinates of u).  With the importance I(u) = luminance of |f(u)| and b = int I(u) du (the
 image's mean luminance), Metropolis sampling draws u with density I(u)/b, and pixel j is
 
-    P_j = (b W H / N) sum_i 1_j(u_i) f(u_i) / I(u_i)    (N mutations over a W x H film).
+    P_j = (b W H / N) sum_i 1_j(u_i) f(u_i) / I(u_i)    (N mutations over a W x H film)
 
+(before Kelemen's weights, below).
 * **The estimator** is the path estimator of ``nee_path`` with its defaults (power-heuristic MIS
   between one light sample and the BSDF sample at every vertex, light selection by power,
   throughput roulette from depth 5): the shared :meth:`VertexEstimator.path`, driven by a
@@ -16,12 +17,21 @@ image's mean luminance), Metropolis sampling draws u with density I(u)/b, and pi
   large step (a fresh uniform vector) with probability ``large_step``, otherwise Kelemen's small
   step (every coordinate moved by at most ``sigma``, mod 1; a symmetric proposal), and accepts
   with a = min(1, I(u')/I(u)).
-* **Expected-value splatting** (Veach): the current state is splatted with weight 1 - a and the
-  proposal with weight a, each at its own pixel, f/I times b W H / N, by atomic adds into the
-  film (a box filter of one pixel: each splat goes to the pixel its film position falls in).
-* **Normalisation and start**: b is the mean of I over ``bootstrap`` independent paths (an
-  unbiased estimate of int I); the chains start from those paths, resampled in proportion to
-  I, so they start (approximately) in the stationary distribution and start-up bias is small.
+* **Expected-value splatting** (Veach) **with Kelemen's weights**: the current state is
+  splatted with weight 1 - a and the proposal with weight a, each at its own pixel, by atomic
+  adds into the film (a box filter of one pixel: each splat goes to the pixel its film position
+  falls in).  A large-step proposal is also an independent uniform sample, so it counts once
+  more; the two sample sets (Metropolis, density I/b per mutation, and large steps, density
+  p_large) are combined by the balance heuristic: each splat is f / (I/b + p_large) times
+  (1 - a), (a + [large step]), and W H / N.  With ``large_step = 0`` this is f b / I.
+* **Normalisation and start**: b is the mean of I over ``bootstrap`` independent paths, refined
+  by the I of every large-step proposal (independent uniform samples too); it multiplies the
+  pass's splats at the end of the pass.  The chains start from the bootstrap paths, resampled
+  in proportion to I (systematic resampling), so they start in the bootstrap's estimate of the
+  stationary distribution: no start-up bias in expectation, but a rare bright path found by the
+  bootstrap starts several chains, which splat a blob until they move apart.
+* **Emission seen directly** (``separate_emission``, default on) is rendered apart by ``spp``
+  camera rays per pixel: a light in view would otherwise draw most chains to its pixels.
 * **Passes**: ``render()`` with ``spp`` does spp x W x H mutations (spp = mutations per pixel,
   the last step over a rotating subset of the chains).  With ``continue_chains`` (default) a
   render whose seed is the previous render's seed + 1 (the passes of ``render`` /
