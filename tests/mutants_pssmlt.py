@@ -36,6 +36,13 @@ MUTANTS = [
     # the chains start from the bootstrap paths in order, not resampled by I
     ("pssmlt-no-resampling", _P,
      "if resample and lum_sum > 0:", "if False and lum_sum > 0:", _T),
+    # Kelemen's weights without the large step's second count (its independent-sample part)
+    ("pssmlt-large-step-not-counted", _P,
+     "(a + dr.select(large, 1.0, 0.0))", "(a + dr.select(large, 0.0, 0.0))", _T),
+    # Kelemen's weights with a density of large steps that does not match large_step
+    ("pssmlt-large-step-density-doubled", _P,
+     "pb = dr.opaque(mi.Float, large_step * st.b)",
+     "pb = dr.opaque(mi.Float, 2.0 * large_step * st.b)", _T),
     # the splat scale miscounts the mutations of a pass
     ("pssmlt-scale-miscount", _P,
      "dr.opaque(mi.Float, w * h / total)",
