@@ -16,21 +16,20 @@ around any such normal (pi/2 for Lambertian emitters), plus a two-sided flag (th
 with d the distance from x to the power-weighted centre of the node's lights (pbrt-v4 takes the
 box centre; the weighted centre ranks clusters better: the second moment of the light choice
 for unshadowed direct light on the 1,024-light field fell from 1.83x to 1.60x the ideal's, mean
-over 100 floor points; selection by power alone: 38x), r the box's
-half diagonal (pbrt's clamp: a length, not its square, so nodes that contain x still rank their
-children by distance), theta_b the half-angle
-the box's bounding sphere subtends at x (pi inside it), theta' = max(theta_w - theta_o - theta_b,
+over 100 floor points; selection by power alone: 38x), r the box's half diagonal (pbrt's clamp:
+a length, not its square, so nodes that contain x still rank their children by distance),
+theta_b the half-angle the box's bounding sphere subtends at x (pi inside it), theta' = max(theta_w - theta_o - theta_b,
 0) the smallest angle between the cone and the direction to x, and theta_i the angle between that
 direction and the line of n (|cos|: the receiver may transmit).  I = 0 only when no point of the
 box can emit towards x within the cone (theta' >= theta_e + 1e-3 rad of slack for float32); the
 receiver factor is floored at 1e-3, so a light that can contribute always has I > 0 and can be
 chosen (the estimator stays unbiased without a defensive mixture).
 
-**Traversal** (:meth:`LightTree.choose`): from the root, the child c of a node is chosen with
+**Traversal** (:meth:`DeviceTree.traverse`, :meth:`LightTreeSelection.choose`): from the root, the child c of a node is chosen with
 probability I_c / (I_left + I_right), one uniform number rescaled after each decision; the pmf of
 the light reached is the product of those ratios.  A symbolic Dr.Jit loop (one iteration per
 level), so the kernel does not grow with the number of lights.  **The pmf of a given light** at a
-point (:meth:`LightTree.pmf_at`, for MIS of BSDF-sampled hits) walks the same root-to-leaf path,
+point (:meth:`DeviceTree.pmf`, :meth:`LightTreeSelection.pmf_at`, for MIS of BSDF-sampled hits) walks the same root-to-leaf path,
 read from the light's bit trail (bit k: right child at depth k; 64 bits in two words), evaluating
 the same two importances per level in the same order, so it equals the probability of traversal.
 
@@ -49,8 +48,8 @@ the same two importances per level in the same order, so it equals the probabili
 * infinite emitters (``constant``, ``envmap``, ``directional``) are chosen **outside the tree**:
   with probability p_inf = (their power) / (power of all emitters), the same share as
   ``light_selection=power`` gives them (pbrt-v4 gives them n_inf / (n_inf + 1), which spends half
-  of the light samples of ``veach_mis`` on its faint environment), one of them by power, of
-  nonzero power uniformly, otherwise the tree.
+  of the light samples of ``veach_mis`` on its faint environment), and among them by power;
+  otherwise the tree.
 
 Emitters of zero power are not in the tree and are never chosen (they add nothing).  If every
 finite emitter has zero power (a power estimate that failed), all get power 1.
@@ -60,12 +59,11 @@ lights, no Python loop over nodes), splitting each node at the minimum over 3 ax
 boundaries (12 buckets over the centroid bounds) of pbrt's surface-area-orientation cost
 Phi * M_Omega(theta_o, theta_e) * area(box) * K_r (K_r = longest box extent / extent along the
 axis), with one light per leaf.  To keep the build fast, nodes of at most 64 lights leave the
-orientation measure out of the cost (their split is by area and power: below that size their
-lights' cones differ little in practice), nodes of at most 8 lights are split at the median of
+orientation measure out of the cost (their split is by area and power only: split quality
+traded for build time), nodes of at most 8 lights are split at the median of
 their longest centroid extent, and where every light of a level has the same cone (all point
-or sphere lights, a ceiling of equal panels) the orientation measure drops out exactly.  Bucket
-cones are bounded by their mean axis and the largest
-angle to it, unions of cones follow pbrt's ``Union(DirectionCone, DirectionCone)``.  A node
+or sphere lights, a ceiling of equal panels) the orientation measure drops out exactly.  Bucket cones are bounded by their mean axis and
+the largest angle to it, unions of cones follow pbrt's ``Union(DirectionCone, DirectionCone)``.  A node
 with no valid split (all centroids equal), or deeper than 40, is split at the median count, so
 the depth stays below 64 for up to 2^24 lights.  Nodes are numbered level by level with the two
 children adjacent, and flattened into Dr.Jit arrays (boxes rounded outwards to float32).
