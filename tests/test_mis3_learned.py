@@ -70,3 +70,15 @@ def test_specular_box_after_learning():
     ref = testing.batch_images(scene, mi.load_dict({"type": "path", "max_depth": 6}),
                                batches=16, spp=1024, seed0=777)
     assert_unbiased(scene, ref, integ, spp=2048, batches=16, block=8, max_rel_se=0.01)
+
+
+def test_run_record_says_how_it_learned(tmp_path):
+    """``render`` writes the integrator's ``run_notes()`` into the run record: for the learned
+    allocation, how many passes recorded statistics, whether learning settled, how many regions
+    learned and the spread of what they chose."""
+    from integrators.app import progressive
+    scene = mi.load_dict({**closed_box_scene(0.5, 1.0), "integrator": {"type": "mis3"}})
+    acc = progressive.render(scene, spp=64)
+    notes = acc.run_record().notes
+    assert notes["selection"] == "learned" and notes["recorded_passes"] >= 1, notes
+    assert {"settled", "regions_learned"} <= set(notes), notes

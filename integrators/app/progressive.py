@@ -295,6 +295,9 @@ def render(scene, spp: int | None = None, time_budget: float | None = None, seed
                                     channels=_film_channel_names(scene, sensor, img.shape[2]))
         acc.add(img, n, next_seed)
         acc.seconds = time.perf_counter() - t0
+        notes = getattr(scene.integrator(), "run_notes", None)
+        if callable(notes):     # the integrator's own account of its state (learning, chains)
+            acc.record = replace(acc.record, notes=dict(notes()))
         if spp is None and acc.passes <= 3:
             # the first pass includes compilation: size the passes from the next ones too
             pass_spp = int(min(cap, max(1, round(PASS_SECONDS * n / max(dt, 1e-6)))))

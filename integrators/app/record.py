@@ -55,6 +55,9 @@ class RunRecord:
     seconds: float = 0.0
     #: seed ranges of merged runs ([[first, last], ...]); one entry for a single run
     seed_ranges: list = field(default_factory=list)
+    #: what the integrator says of its own state after the run (``run_notes()``: e.g. what a
+    #: learning integrator learned and when it stopped); not part of the identity
+    notes: dict = field(default_factory=dict)
 
     # -------------------------------------------------------------------------------------
     @classmethod

@@ -170,6 +170,7 @@ class MIS3(IntegratorTemplate):
         #: later passes record nothing (no statistics in the kernel: the cost of learning ends)
         self.settled = False
         self._quiet = False
+        self._learn_passes = 0
         self._depth = 0
 
     # ---- selection=learned: the light-sample probability per region ------------------------
@@ -177,6 +178,7 @@ class MIS3(IntegratorTemplate):
         if self.learned:   # a new scene: learn from scratch
             self.grid = RegionGrid(scene, stats=len(LEARNED_P) + 3)
             self.settled = False
+            self._learn_passes = 0
         return []
 
     def render(self, scene, sensor=0, seed=0, spp=0, develop=True, evaluate=True):
@@ -207,6 +209,22 @@ class MIS3(IntegratorTemplate):
         if self.grid is not None:
             self.grid.reset()
         self.settled = False
+        self._learn_passes = 0
+
+    def run_notes(self) -> dict:
+        """For the run record: how the light-sample allocation was learned."""
+        if not self.learned:
+            return {}
+        notes = {"selection": "learned", "recorded_passes": self._learn_passes,
+                 "settled": self.settled, "learning": self.learning}
+        if self.grid is not None:
+            t = self.grid.table()
+            t = t[t > 0]
+            notes["regions_learned"] = int(t.size)
+            if t.size:
+                notes["allocation_quantiles_10_50_90"] = [round(float(q), 3) for q in
+                                                          np.quantile(t, [0.1, 0.5, 0.9])]
+        return notes
 
     @staticmethod
     def _sensor(scene, sensor):
@@ -222,6 +240,7 @@ class MIS3(IntegratorTemplate):
         if self.recording and self._depth == 0:   # (the kernel recorded statistics)
             dr.eval(img)
             self.learn()
+            self._learn_passes += 1
         return img
 
     @property
