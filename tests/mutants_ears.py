@@ -23,11 +23,15 @@ MUTANTS = [
      'sid=dr.gather(mi.UInt32, st["sid"], rank),', _T),
     # emission found by the continuation weighted with the throughput before the BSDF sample
     ("ears-emission-old-throughput", _S,
-     "c += dr.select(act, beta * L_w, 0.0)", 'c += dr.select(act, st["beta"] * L_w, 0.0)', _T),
+     "        c += dr.select(act, beta * L_w, 0.0)\n        alive = act",
+     '        c += dr.select(act, st["beta"] * L_w, 0.0)\n        alive = act', _T),
     # one bounce too many (max_depth off by one)
     ("ears-depth-limit-off-by-one", _S,
-     "alive = act & si_n.is_valid() & (depth + 1 < limit)",
-     "alive = act & si_n.is_valid() & (depth < limit)", _T),
+     "alive = act & si_n.is_valid() & (depth + 1 < limit)\n        self._next",
+     "alive = act & si_n.is_valid() & (depth < limit)\n        self._next", _T),
+    # the tail's roulette without its 1/n
+    ("ears-tail-roulette-uncompensated", _S,
+     "            beta *= copy_weight(q)\n", "", _T),
     # contributions written instead of added: the copies of a camera sample overwrite each
     # other (and the first hit's emission)
     ("ears-contribution-overwrites", _S,

@@ -55,7 +55,7 @@ class NEEPath(IntegratorTemplate):
                                 "throughput, or adaptive (EARS: roulette and splitting at every "
                                 "vertex, learned per region)."),
         *roulette.RR_PARAMS[2:],
-        Param("rr_min", "float", 0.05, min=0.001, max=1.0,
+        Param("rr_min", "float", 0.1, min=0.001, max=1.0,
               doc="rr=adaptive: smallest survival probability of a vertex."),
         Param("split_max", "int", 8, min=1, max=64,
               doc="rr=adaptive: largest number of copies a vertex splits into."),

@@ -65,19 +65,29 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ..common import depth_limit, lnot, luminance, safe_div
+from ..common import depth_limit, emitted, luminance, safe_div
 from .learning import RegionGrid
 
 #: bounces whose vertices keep records (statistics of L_r and cost per region)
 LEARN_DEPTH = 3
 #: copies a region needs before its learned factors replace the throughput rule
 MIN_VISITS = 32
+#: a batch's last paths (fewer live lanes than this fraction of its camera samples, after the
+#: bounces that keep records) finish in one kernel with roulette only (:meth:`Wavefront.tail`)
+TAIL_FRACTION = 0.25
 #: resolutions of the fine and the coarse grid (cells along the scene's longest side)
 FINE, COARSE = 32, 8
 #: weight of older statistics after each pass (the policy behind a vertex changes)
 DECAY = 0.5
 #: cost of a shadow ray relative to a continuation (closest-hit) ray and its vertex
 SHADOW_COST = 0.5
+#: the roulette factor is raised by this much: a region's second moment is estimated from few,
+#: heavy-tailed samples and reads low more often than high, and roulette that is too aggressive
+#: costs more than roulette that is too mild
+RR_MARGIN = 2.0
+#: cost of a camera sample before its first bounce (camera ray, its generation and the film
+#: splat) in the same unit: what splitting at the first hit saves per copy
+CAMERA_COST = 2.0
 #: the throughput rule's survival cap (Mitsuba's path, pbrt)
 THROUGHPUT_CAP = 0.95
 #: atomic scatter-adds (the default may replicate the target per thread, with its size baked
@@ -199,7 +209,7 @@ class EARS:
         m2 = np.where(ok, st[:, 0] * inv, 0.0)
         mu = np.where(ok, st[:, 1] * inv, 0.0)
         v = np.maximum(m2 - mu ** 2, 0.0)
-        f_m = np.where(ok, np.sqrt(m2 * k / c), -1.0)
+        f_m = np.where(ok, RR_MARGIN * np.sqrt(m2 * k / c), -1.0)
         f_v = np.where(ok, np.sqrt(v * k / c), -1.0)
         return f_m, f_v, ok
 
@@ -305,22 +315,32 @@ class Wavefront:
         n_cam = dr.width(ray)
         limit = depth_limit(integ.max_depth)
         learn = ears.learning and ears.forced is None
+        self._next = None
         self.L = dr.zeros(mi.Spectrum, n_cam)
         cost = dr.zeros(mi.Float, n_cam)
-        si, L0 = integ.camera_hit(scene, ray, True)
+        if integ.params.get("hide_emitters", False) or integ.max_depth == 0:
+            si, L0 = integ.camera_hit(scene, ray, True)
+        else:   # as camera_hit, keeping the preliminary intersection (a smaller state to copy)
+            pi = scene.ray_intersect_preliminary(ray, coherent=True)
+            si = pi.compute_surface_interaction(ray, mi.RayFlags.All)
+            L0 = emitted(scene, si, True)
+            self._next = (mi.Ray3f(ray), pi)
         valid = si.is_valid()
-        self.L += L0
         alive = valid & (1 < limit)
+        # the first hit's light samples, once per camera sample (the copies split only the
+        # continuation)
+        L_nee, k0 = self.light(scene, sel, sampler, si, alive)
+        self.L += L0 + L_nee
+        cost += k0
         sid = dr.arange(mi.UInt32, n_cam)
         beta = mi.Spectrum(1.0)
         eta = mi.Float(1.0)
         depth = mi.UInt32(0)
         u = sampler.next_1d()
         n, cell = ears.factor(si, beta, eta, depth, pixel, sampler, alive)
-        dr.eval(self.L, valid, n, u, cell, si)
+        dr.eval(self.L, cost, valid, n, u, cell, si if self._next is None else self._next)
         self.stats["camera_rays"] += n_cam
         recs = []
-        self._next = None
         self._cont = 0
         state = self.replicate(dict(si=si, beta=beta, eta=eta, depth=depth, sid=sid,
                                     pixel=pixel, hist=[], acc=[]), n, u, cell, alive, recs,
@@ -347,6 +367,11 @@ class Wavefront:
                                         sid=state["sid"], pixel=state["pixel"], hist=hist,
                                         acc=acc),
                                    n, u, cell, alive, recs, learn and bounce < LEARN_DEPTH)
+            if state is not None and bounce >= LEARN_DEPTH and \
+                    state["width"] < TAIL_FRACTION * n_cam:
+                bounce += self.tail(scene, sel, sampler, state, limit, recs, cost,
+                                    seed_mix(seed, b0, bounce, 0x7A11))
+                state = None
         self.stats["bounces"] = max(self.stats["bounces"], bounce)
         # the cost of a bounce is 1 + SHADOW_COST per shadow ray: count them from it
         work = float(dr.sum(cost)[0])
@@ -357,38 +382,91 @@ class Wavefront:
                 vals = [L_r * L_r, L_r, mi.Float(1.0), r["R"]]
                 ears.grid.add(r["cell"][0], vals, r["blum"] > 0, mode=DIRECT)
                 ears.coarse.add(r["cell"][1], vals, r["blum"] > 0, mode=DIRECT)
-        ears.pass_cost += work + n_cam
+        ears.pass_cost += work + CAMERA_COST * n_cam
         dr.eval(ears.grid.stats, ears.coarse.stats)
         return self.L, valid
 
-    def vertex(self, scene, sel, sampler, st, limit):
-        """The kernel of one bounce over the live lanes: the vertex estimate and the emission
-        its continuation finds (the contribution c), the next vertex, and the cost k."""
-        integ = self.integ
-        vx = integ.vertex
-        ctx = mi.BSDFContext()
+    @dr.syntax
+    def tail(self, scene, sel, sampler, st, limit, recs, cost, seed: int) -> int:
+        """The few paths left of a batch, finished in one kernel (a loop over the bounces)
+        instead of a wavefront per bounce: the same vertex estimate, with roulette only (n
+        clamped to 1: no more copies, so no more replication), survivors weighted 1/n.  What
+        the lanes add goes to their records at the end (no records are made here).  Returns
+        the number of bounces."""
+        ears = self.ears
+        sampler.seed(dr.opaque(mi.UInt32, seed), st["width"])
+        ray = mi.Ray3f(st["ray"])
+        si = st["pi"].compute_surface_interaction(ray, mi.RayFlags.All, True)
+        beta, eta, depth = mi.Spectrum(st["beta"]), mi.Float(st["eta"]), mi.UInt32(st["depth"])
+        sid, pixel = st["sid"], st["pixel"]
+        lum_sum, cost_sum = mi.Float(0.0), mi.Float(0.0)
+        rays = mi.UInt32(0)
         active = mi.Bool(True)
+        while dr.hint(active, label="ears tail"):
+            _, _, si_n, beta, eta, depth, alive, c, k = self.continuation(
+                scene, sel, sampler, si, beta, eta, depth, limit, active)
+            dr.scatter_reduce(dr.ReduceOp.Add, self.L, c, sid, mode=DIRECT)
+            dr.scatter_reduce(dr.ReduceOp.Add, cost, k, sid, mode=DIRECT)
+            lum_sum += luminance(c)
+            cost_sum += k
+            rays += 1
+            n, _ = ears.factor(si_n, beta, eta, depth, pixel, sampler, alive)
+            q = dr.minimum(n, 1.0)
+            alive &= sampler.next_1d() < q
+            beta *= copy_weight(q)
+            si = si_n
+            active = alive
+        for r, hh, (a, b) in zip(recs, st["hist"], st["acc"]):
+            dr.scatter_reduce(dr.ReduceOp.Add, r["S"], a + lum_sum, hh, mode=DIRECT)
+            dr.scatter_reduce(dr.ReduceOp.Add, r["R"], b + cost_sum, hh, mode=DIRECT)
+        total = dr.sum(rays)
+        longest = dr.max(rays)
+        dr.eval(self.L, cost, total, longest, [(r["S"], r["R"]) for r in recs])
+        self.stats["continuation_rays"] += int(total[0])
+        self._cont += int(total[0])
+        return int(longest[0])
+
+    def light(self, scene, sel, sampler, si, active):
+        """The light samples at a vertex (:meth:`VertexEstimator.direct`, its BSDF sample
+        unused: each copy of the path draws its own) and their cost: (L, cost)."""
+        bsdf = si.bsdf()
+        d = self.integ.vertex.direct(scene, sel, sampler, mi.BSDFContext(), si, bsdf, active)
+        smooth = mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
+        k = dr.select(active & smooth & (sel.count > 0), SHADOW_COST, 0.0)
+        return dr.select(active, d.L, 0.0), k
+
+    def continuation(self, scene, sel, sampler, si, beta, eta, depth, limit, active):
+        """One copy's continuation from ``si``: a BSDF sample, its ray, the emission it finds
+        (MIS-weighted against the light samples at ``si``), and the light samples at the vertex
+        it reaches.  Returns (ray, pi, si_next, beta, eta, depth, alive, contribution, cost)."""
+        vx = self.integ.vertex
+        ctx = mi.BSDFContext()
+        bsdf = si.bsdf()
+        bs, w = bsdf.sample(ctx, si, sampler.next_1d(active), sampler.next_2d(active), active)
+        beta = beta * w
+        eta = eta * bs.eta
+        depth = depth + 1
+        act = active & (bs.pdf > 0) & dr.any(mi.unpolarized_spectrum(beta) != 0)
+        ray = si.spawn_ray(si.to_world(bs.wo))
+        pi = scene.ray_intersect_preliminary(ray, coherent=False, active=act)
+        si_n = pi.compute_surface_interaction(ray, mi.RayFlags.All, act)
+        delta = mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta)
+        L_w = vx.emission(scene, sel, si, si_n, [vx.n_b * bs.pdf], delta, act)
+        c = dr.select(act, beta * L_w, 0.0)
+        alive = act & si_n.is_valid() & (depth + 1 < limit)
+        L_nee, k = self.light(scene, sel, sampler, si_n, alive)
+        c += beta * L_nee
+        return ray, pi, si_n, beta, eta, depth, alive, c, 1.0 + k
+
+    def vertex(self, scene, sel, sampler, st, limit):
+        """The kernel of one bounce over the live lanes (:meth:`continuation`): the
+        contribution c, the next vertex, and the cost k."""
         if "si" in st:
             si = st["si"]
         else:
-            si = st["pi"].compute_surface_interaction(st["ray"], mi.RayFlags.All, active)
-        bsdf = si.bsdf()
-        d = vx.direct(scene, sel, sampler, ctx, si, bsdf, active)
-        beta = st["beta"]
-        c = beta * d.L
-        smooth = mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
-        k = 1.0 + dr.select(smooth & (sel.count > 0), SHADOW_COST, 0.0)
-        beta = beta * d.weight
-        eta = st["eta"] * d.bs.eta
-        depth = st["depth"] + 1
-        act = (d.bs.pdf > 0) & dr.any(mi.unpolarized_spectrum(beta) != 0)
-        ray = si.spawn_ray(si.to_world(d.bs.wo))
-        pi = scene.ray_intersect_preliminary(ray, coherent=False, active=act)
-        si_n = pi.compute_surface_interaction(ray, mi.RayFlags.All, act)
-        delta = mi.has_flag(d.bs.sampled_type, mi.BSDFFlags.Delta)
-        L_w = vx.emission(scene, sel, si, si_n, [vx.n_b * d.bs.pdf], delta, act, d.norm)
-        c += dr.select(act, beta * L_w, 0.0)
-        alive = act & si_n.is_valid() & (depth + 1 < limit)
+            si = st["pi"].compute_surface_interaction(st["ray"], mi.RayFlags.All, True)
+        ray, pi, si_n, beta, eta, depth, alive, c, k = self.continuation(
+            scene, sel, sampler, si, st["beta"], st["eta"], st["depth"], limit, mi.Bool(True))
         self._next = (ray, pi)
         return si_n, beta, eta, depth, alive, c, k
 
