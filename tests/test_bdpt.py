@@ -113,7 +113,9 @@ def test_caustic_scene_same_image_as_path():
     scene = mi.load_file("scenes/caustic.xml", res=8)
     ref = testing.batch_images(scene, mi.load_dict({"type": "path", "max_depth": 6}),
                                batches=BATCHES, spp=65536, seed0=80_000)
-    assert_unbiased(scene, ref, {"type": "bdpt", "max_depth": 6}, batches=BATCHES, spp=4096)
+    # one 8x8 block: path's caustic noise needs the whole image for a 0.5 % relative s.e.
+    assert_unbiased(scene, ref, {"type": "bdpt", "max_depth": 6}, batches=BATCHES, spp=4096,
+                    block=8)
 
 
 @pytest.mark.slow
