@@ -123,7 +123,8 @@ def measure(scene_name: str, n_lights, res: int, spp: int, repeats: int, ref_spp
         # the selection alone: one choice at each of 2^20 random points of the floor plane
         wall = []
         # adaptive is O(N) per choice: fewer points, so that it takes seconds, not minutes
-        m = lanes if name != "adaptive" else max(1 << 12, lanes * 64 // len(scene.emitters()))
+        m = lanes if name != "adaptive" else min(lanes, max(1 << 12, lanes * 64 // len(
+            scene.emitters())))
         for r in range(repeats + 1):
             si = dr.zeros(mi.SurfaceInteraction3f, m)
             si.p = mi.Point3f(mi.Float(pts[0][:m]), mi.Float(pts[1][:m]), float(lo_b[2]))
