@@ -83,7 +83,11 @@ def check(plugin: str, spec: Param, value: Any) -> Any:
             return value
         if isinstance(value, str) and value.lower() in ("true", "false"):
             return value.lower() == "true"
-        raise fail(plugin, spec.name, value, spec.allowed())
+        # worded as Mitsuba words a wrongly typed boolean property (hide_emitters is read by
+        # Mitsuba first), so every boolean parameter fails with the same kind of line
+        raise ParameterError(f"{plugin}: parameter '{spec.name}' = {value!r} is invalid (wrong "
+                             f"type for boolean property \"{spec.name}\"); allowed: "
+                             f"{spec.allowed()}")
     if spec.kind == "int":
         if isinstance(value, bool):
             raise fail(plugin, spec.name, value, spec.allowed())
