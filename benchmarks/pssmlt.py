@@ -138,7 +138,8 @@ class Bench:
                     next_cp *= 2
             if t >= budget:
                 break
-        stats = integ.stats() if hasattr(integ, "stats") else {}
+        st = getattr(integ, "stats", None)       # pssmlt's run statistics (a method)
+        stats = st() if callable(st) else {}
         return points, stats
 
     def error_vs_time(self, name, scene, ref):
