@@ -149,7 +149,9 @@ class BDPT(IntegratorTemplate):
         if isinstance(sensor, int):
             sensor = scene.sensors()[sensor]
         sel = self.prepare(scene)
-        self.check_support(scene, sensor)
+        if getattr(self, "_supported", None) != (scene, sensor):   # once per scene and sensor
+            self.check_support(scene, sensor)
+            self._supported = (scene, sensor)
         film = sensor.film()
         spp = int(spp) or int(sensor.sampler().sample_count())
         film.prepare(self.aov_names())
@@ -243,7 +245,7 @@ class BDPT(IntegratorTemplate):
             active &= ds.pdf > 0
             wo = si.to_local(ds.d)
             f = bsdf.eval(ctx, si, wo, active) * shading_correction(si, ds.d)
-            p_rev = reverse_pdf(bsdf, ctx, si, wo, active)
+            p_rev = reverse_pdf(bsdf, ctx, si, wo, active & (dvc > 0))
             p_cam = mi.unpolarized_spectrum(w_s)[0] * dr.abs(dr.dot(si.n, ds.d))
             w = self.weight(1.0 + mis(p_cam) * (dvcm + dvc * mis(p_rev)))
             value = beta * f * w_s * (w * scale)
@@ -325,7 +327,7 @@ class BDPT(IntegratorTemplate):
             # one BSDF call evaluates the light sample's direction and samples the continuation
             f_l, p_fwd_l, bs, w = bsdf.eval_pdf_sample(ctx, si, wo_l, sampler.next_1d(hit),
                                                        sampler.next_2d(hit), hit)
-            p_rev_l = reverse_pdf(bsdf, ctx, si, wo_l, vis)
+            p_rev_l = reverse_pdf(bsdf, ctx, si, wo_l, vis & (dvc > 0))
             is_area_l, pos_pdf_l, dir_pdf_l = tables.lookup(ds_l.emitter, vis)
             pick_l = sel.pmf(ds_l.emitter, vis)
             p_nee_w = safe_div(ds_l.pdf, pick_l)
@@ -345,7 +347,7 @@ class BDPT(IntegratorTemplate):
             # continue with the BSDF sample drawn above (radiance mode)
             spec = is_delta_sample(bs)
             wo = si.to_world(bs.wo)
-            p_rev = reverse_pdf(bsdf, ctx, si, bs.wo, hit & ~spec)
+            p_rev = reverse_pdf(bsdf, ctx, si, bs.wo, hit & ~spec & (dvc > 0))
             cos_out = dr.abs(dr.dot(si.n, wo))
             dvc = dr.select(spec, dvc * mis(cos_out),
                             mis(safe_div(cos_out, bs.pdf)) * (dvc * mis(p_rev) + dvcm))
@@ -381,10 +383,10 @@ class BDPT(IntegratorTemplate):
             ok &= dist2 > 0
             wo_c = si.to_local(dirn)
             f_c, p_c = bsdf.eval_pdf(ctx, si, wo_c, ok)
-            p_c_rev = reverse_pdf(bsdf, ctx, si, wo_c, ok)
+            p_c_rev = reverse_pdf(bsdf, ctx, si, wo_c, ok & (dvc > 0))
             wo_y = sy.to_local(-dirn)
             f_y, p_y = bsdf_y.eval_pdf(ctx_l, sy, wo_y, ok)
-            p_y_rev = reverse_pdf(bsdf_y, ctx_l, sy, wo_y, ok)
+            p_y_rev = reverse_pdf(bsdf_y, ctx_l, sy, wo_y, ok & (dvc_y > 0))
             inv_d2 = safe_div(1.0, dist2)
             cos_c = dr.abs(dr.dot(si.n, dirn))
             cos_y = dr.abs(dr.dot(sy.n, dirn))

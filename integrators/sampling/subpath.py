@@ -98,7 +98,9 @@ def with_wi(si, wi):
 
 
 def reverse_pdf(bsdf, ctx, si, wo_local, active):
-    """Density of sampling the direction back along ``si.wi`` when arriving from ``wo_local``."""
+    """Density of sampling the direction back along ``si.wi`` when arriving from ``wo_local``.
+    Callers mask it with ``dvc > 0``: it only ever multiplies ``dvc`` (zero at a camera
+    subpath's first vertex and after a delta light), so those lanes skip the BSDF call."""
     return bsdf.pdf(ctx, with_wi(si, wo_local), si.wi, active)
 
 
@@ -320,7 +322,7 @@ class LightWalk:
             bs, w = bsdf.sample(ctx, si, sampler.next_1d(active), sampler.next_2d(active), active)
             wo = si.to_world(bs.wo)
             spec = is_delta_sample(bs)
-            p_rev = reverse_pdf(bsdf, ctx, si, bs.wo, active & ~spec)
+            p_rev = reverse_pdf(bsdf, ctx, si, bs.wo, active & ~spec & (dvc > 0))
             cos_out = dr.abs(dr.dot(si.n, wo))
             dvc = dr.select(spec, dvc * mis(cos_out),
                             mis(safe_div(cos_out, bs.pdf)) * (dvc * mis(p_rev) + dvcm))
