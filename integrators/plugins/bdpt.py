@@ -35,12 +35,25 @@ own seed) inside one ``render`` call.
 
 **Scope**: area lights (uniform position on the shape; textured emitters refused), point and
 spot lights; environment and directional emitters are refused in one line (no bidirectional
-strategy for infinite emitters yet; render them with ``nee_path``).  The sensor must be a
-``perspective`` camera (pinhole).  JIT variants only (``llvm_*``/``cuda_*``, RGB or mono);
-scalar and spectral variants are refused in one line.  No media.
+strategy for infinite emitters yet; render them with ``nee_path``), and so are other emitters
+(``projector``).  Sensors: ``perspective`` (pinhole: every strategy) and ``radiancemeter`` (its
+delta direction cannot be connected to: no light tracing, its weight is zero).  JIT variants
+only (``llvm_*``/``cuda_*``, RGB or mono); scalar and spectral variants are refused in one
+line.  No media, no ``hide_emitters``.  ``light_selection`` is ``uniform`` or ``power``: the
+light subpath's start and next-event estimation need the same pmf, without a shading point.
 
-``render()`` does the work (``mi.render`` and the ``render`` command call it); ``sample()`` is
-not used: a per-camera-sample estimate cannot hold the light-tracing splats.
+**Strategy images** (``strategy_images=true``): AOV layers ``s<s>_t<t>`` (R, G, B) hold each
+strategy's weighted contribution (Veach's strategy figure: which strategy carries a scene); they
+sum to the image.  ``heuristic=none`` weights every strategy 1, so that each layer estimates all
+paths of its length (the check of the strategies and of the weights in the tests).
+
+**Chunks and seeds**: a chunk k > 0 of a render with seed ``seed`` uses the sampler seed
+``seed + k * 0x9E3779B9`` (mod 2^32); only renders of more samples than ``MEMORY_BUDGET``
+holds have such chunks.
+
+``render()`` does the work (``mi.render``, the ``render`` command, its passes, merge and Ctrl-C
+call it as for the other integrators); ``sample()`` is not used (it raises): a per-camera-sample
+estimate cannot hold the light-tracing splats.
 """
 from __future__ import annotations
 
@@ -113,6 +126,10 @@ class BDPT(IntegratorTemplate):
                 raise SceneError(f"{name}: emitter {kind} (infinite) is not supported; "
                                  "allowed: area, point and spot lights (use nee_path)")
             shape = e.get_shape()
+            kind = str(e).split("[", 1)[0]
+            if shape is None and kind not in ("PointLight", "SpotLight"):
+                raise SceneError(f"{name}: emitter {kind} is not supported; allowed: area, "
+                                 "point and spot lights")
             if shape is not None and not _uniform_on_shape(e, shape):
                 raise SceneError(f"{name}: area emitter on shape '{shape.id()}' has a "
                                  "spatially varying radiance; allowed: constant radiance")
