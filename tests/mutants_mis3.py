@@ -9,4 +9,9 @@ MUTANTS = [
     ("allocation-emission-weight-count-1", "integrators/sampling/vertex.py",
      "scale = d.light_scale if learn else None",
      "scale = dr.minimum(d.light_scale, 1.0) if learn else None", ["test_mis3_learned.py"]),
+    # the lobe densities unclamped: roughplastic's diffuse-only pdf is negative below the horizon
+    ("lobe-density-unclamped", "integrators/plugins/mis3.py",
+     "q_d = pi1 * dr.maximum(bsdf.pdf(ctx_d, si, wo, active), 0.0) if has_d else zero",
+     "q_d = pi1 * bsdf.pdf(ctx_d, si, wo, active) if has_d else zero",
+     ["test_mis3_continuation.py"]),
 ]

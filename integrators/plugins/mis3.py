@@ -351,8 +351,10 @@ class MIS3(IntegratorTemplate):
         call for a lobe no surface of the scene has)."""
         _, ctx_d, ctx_g = lobe_contexts()
         zero = mi.Float(0.0)
-        q_d = pi1 * bsdf.pdf(ctx_d, si, wo, active) if has_d else zero
-        q_g = (1.0 - pi1) * bsdf.pdf(ctx_g, si, wo, active) if has_g else zero
+        # clamped: roughplastic's diffuse-only pdf is negative below the horizon (its cosine
+        # is not clamped when one component is asked for), which would break the weights
+        q_d = pi1 * dr.maximum(bsdf.pdf(ctx_d, si, wo, active), 0.0) if has_d else zero
+        q_g = (1.0 - pi1) * dr.maximum(bsdf.pdf(ctx_g, si, wo, active), 0.0) if has_g else zero
         return q_d, q_g
 
     @staticmethod
