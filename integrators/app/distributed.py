@@ -19,13 +19,15 @@ record lists every task's seed range.
   the same sums bit for bit.
 * ``--time T``: one task per slot, each with its own block of seeds (``seed + i B`` to
   ``seed + (i + 1) B - 1``, ``B`` = 2^20 passes or what the 32-bit seeds leave), rendering
-  passes sized as in-process (about 0.25 s) until ``T`` seconds after its scene was loaded,
-  or until the end of its block.  The deadline is a wall-clock time set by the client: a task
-  retried after its worker died renders only what is left of ``T``.  (Clocks of the client and
-  remote workers must agree to within the accuracy wanted.)
+  passes sized as in-process (about 0.25 s) until a wall-clock deadline, ``T`` seconds after
+  the client submitted the tasks plus the task's own scene-load time (in-process, ``--time``
+  also counts from the first pass, after the scene load), or until the end of its block; it
+  ends with the pass in flight.  A task retried after its worker died renders only what is
+  left.  (Clocks of the client and remote workers must agree to within the accuracy wanted.)
 
 **Workers**: ``--workers N`` starts a ``LocalCluster(n_workers=N, threads_per_worker=1,
-processes=True)``; ``--scheduler ADDRESS`` connects to an existing scheduler (the scene files
+processes=True)`` (no dashboard; Dask's profiler off and its monitors slowed down:
+:data:`LOCAL_CONFIG`); ``--scheduler ADDRESS`` connects to an existing scheduler (the scene files
 must be at the same absolute paths on its workers: a task checks the SHA-1 of the file it
 loads against the client's and fails with one line otherwise).  Every worker runs Dr.Jit with
 ``cores // task slots on its host`` threads (``dr.set_thread_count``), so workers x threads =
@@ -69,6 +71,21 @@ CONNECT_TIMEOUT = 10.0
 #: passes in a time-budget task's seed block (2^20 passes of 0.25 s: 73 hours)
 TIME_BLOCK = 1 << 20
 MAX_SEED = (1 << 32) - 1
+#: Dask configuration of a LocalCluster (its scheduler and nannies live in this process; the
+#: workers inherit it through the nannies): Dask's periodic housekeeping, harmless on an idle
+#: core, took about 30 % extra CPU next to a render on a busy 2-core machine (measured: each
+#: worker's event loop 15 % of its render thread, the client process as much again), mostly
+#: the statistical profiler (100 stack samples a second), the event-loop health tick (every
+#: 20 ms) and the system and memory monitors; slowed down here, none of them is used
+LOCAL_CONFIG = {
+    "distributed.worker.profile.enabled": False,
+    "distributed.admin.tick.interval": "1s",
+    "distributed.admin.system-monitor.interval": "5s",
+    "distributed.admin.system-monitor.gil.enabled": False,
+    "distributed.admin.system-monitor.disk": False,
+    "distributed.worker.memory.monitor-interval": "1s",
+    "distributed.deploy.cluster-repr-interval": "10s",
+}
 
 
 class ClusterError(ValueError):
@@ -230,58 +247,78 @@ def _kill_hook(spec: TaskSpec) -> None:
     os._exit(1)
 
 
+def _render_passes(scene, spec: TaskSpec, pass_s: list):
+    """The passes of an spp task (``spec.pass_spp``, seeds from ``spec.seed_first``) into an
+    Accumulator; stops early when the render's stop event is set."""
+    import mitsuba as mi
+
+    from . import progressive
+    from .interrupt import test_pause
+    acc = None
+    t0 = time.perf_counter()
+    for k, n in enumerate(spec.pass_spp):
+        if k and _stop_requested(spec):
+            break
+        seed = spec.seed_first + k
+        test_pause("compile" if acc is None else "pass")
+        tp = time.perf_counter()
+        img = np.array(mi.render(scene, spp=int(n), seed=seed, sensor=spec.sensor),
+                       dtype=np.float64)
+        pass_s.append(time.perf_counter() - tp)
+        if img.ndim == 2:
+            img = img[..., None]
+        if acc is None:
+            acc = progressive.Accumulator.empty(
+                img.shape, seed_first=seed,
+                channels=progressive._film_channel_names(scene, spec.sensor, img.shape[2]))
+        acc.add(img, int(n), seed)
+        acc.seconds = time.perf_counter() - t0
+        _publish(spec, {"task": spec.index, "spp": int(n), "passes": 1})
+        _kill_hook(spec)
+    return acc
+
+
+def _render_until(scene, spec: TaskSpec, load_s: float, pass_s: list):
+    """A time task: ``progressive.render`` with a time budget up to the deadline (module
+    docstring), stopped at the end of the seed block or by the render's stop event."""
+    from . import progressive
+    stop = progressive.Stop()
+    budget = max(spec.deadline + load_s - time.time(), 1e-9) if spec.deadline \
+        else spec.time_budget
+    done = {"spp": 0}
+
+    def on_pass(a):
+        _publish(spec, {"task": spec.index, "spp": int(a.spp - done["spp"]), "passes": 1})
+        pass_s.append(a.seconds - sum(pass_s))
+        done["spp"] = a.spp
+        if a.seed_last >= spec.seed_last or _stop_requested(spec):
+            stop.set("end of the task")
+        _kill_hook(spec)
+    return progressive.render(scene, time_budget=budget, seed=spec.seed_first,
+                              sensor=spec.sensor, stop=stop, on_pass=on_pass)
+
+
 def render_task(spec: TaskSpec) -> dict:
     """Render one task (see the module docstring); the result is a dict of plain values:
     ``s``, ``s2`` (None when nothing was rendered), ``spp``, ``passes``, ``seed_first``,
-    ``seed_last``, ``seconds`` (rendering), ``load_s`` (scene load, 0 when cached),
-    ``channels``, ``finished`` (time.time() at return), ``pid``."""
+    ``seed_last``, ``seconds`` (rendering), ``load_s`` (scene load, 0 when cached; the first
+    task of a process includes its imports), ``channels``, ``started`` and ``finished``
+    (time.time()), ``pid``, ``pass_s`` (seconds of each pass; the first includes the kernel
+    compilation)."""
     t_start, t0 = time.time(), time.perf_counter()
     fresh = not _SCENES
-    from . import progressive
-    from .interrupt import test_pause
     scene, load_s = _load(spec)
-    if load_s and fresh:        # first task of this process: the imports count as loading
+    if load_s and fresh:
         load_s = time.perf_counter() - t0
+    pass_s: list = []
     acc = None
-    if _stop_requested(spec):
-        pass
-    elif spec.pass_spp:
-        import mitsuba as mi
-        t0 = time.perf_counter()
-        for k, n in enumerate(spec.pass_spp):
-            if k and _stop_requested(spec):
-                break
-            seed = spec.seed_first + k
-            test_pause("compile" if acc is None else "pass")
-            img = np.array(mi.render(scene, spp=int(n), seed=seed, sensor=spec.sensor),
-                           dtype=np.float64)
-            if img.ndim == 2:
-                img = img[..., None]
-            if acc is None:
-                acc = progressive.Accumulator.empty(
-                    img.shape, seed_first=seed,
-                    channels=progressive._film_channel_names(scene, spec.sensor, img.shape[2]))
-            acc.add(img, int(n), seed)
-            acc.seconds = time.perf_counter() - t0
-            _publish(spec, {"task": spec.index, "spp": int(n), "passes": 1})
-            _kill_hook(spec)
-    else:
-        stop = progressive.Stop()
-        budget = max(spec.deadline + load_s - time.time(), 1e-9) if spec.deadline \
-            else spec.time_budget
-
-        def on_pass(a):
-            _publish(spec, {"task": spec.index, "spp": int(a.spp - on_pass.spp), "passes": 1})
-            on_pass.spp = a.spp
-            if a.seed_last >= spec.seed_last or _stop_requested(spec):
-                stop.set("end of the task")
-            _kill_hook(spec)
-        on_pass.spp = 0
-        acc = progressive.render(scene, time_budget=budget, seed=spec.seed_first,
-                                 sensor=spec.sensor, stop=stop, on_pass=on_pass)
+    if not _stop_requested(spec):         # a task that starts after a stop renders nothing
+        acc = (_render_passes(scene, spec, pass_s) if spec.pass_spp
+               else _render_until(scene, spec, load_s, pass_s))
     out = {"index": spec.index, "s": None, "s2": None, "spp": 0, "passes": 0,
            "seed_first": spec.seed_first, "seed_last": spec.seed_first - 1, "seconds": 0.0,
-           "load_s": load_s, "channels": (), "started": t_start, "pid": os.getpid()}
+           "load_s": load_s, "channels": (), "started": t_start, "pid": os.getpid(),
+           "pass_s": pass_s}
     if acc is not None:
         out.update(s=acc.s, s2=acc.s2, spp=acc.spp, passes=acc.passes,
                    seed_first=acc.seed_first, seed_last=acc.seed_last,
@@ -408,11 +445,15 @@ class Cluster:
                     f"{CONNECT_TIMEOUT:g} s ({_reason(e)}); give the address the scheduler "
                     "prints, e.g. tcp://HOST:8786") from None
         else:
-            with _sigint_ignored():
+            import dask
+            # the workers' statistical profiler samples the task thread's stack 100 times a
+            # second: about 10 % of a worker's CPU during a render (measured), for a profile
+            # nobody reads here
+            with _sigint_ignored(), dask.config.set(LOCAL_CONFIG):
                 self.cluster = LocalCluster(n_workers=int(workers), threads_per_worker=1,
                                             processes=True, dashboard_address=None,
                                             silence_logs=logging.CRITICAL)
-            self.client = Client(self.cluster, set_as_default=False)
+                self.client = Client(self.cluster, set_as_default=False)
         info = self.client.scheduler_info()["workers"]
         by_host = Counter()
         for w in info.values():
@@ -454,14 +495,16 @@ class Progress:
 
 def render(cluster: Cluster, scene_path, record, film: tuple, spp: int | None = None,
            time_budget: float | None = None, seed: int = 0, sensor: int = 0, stop=None,
-           on_progress=None, on_abandon=None, stats: dict | None = None):
-    """Render on ``cluster`` and return the merged :class:`Accumulator` (None when nothing was
-    rendered).  ``record`` is the run's identity (``RunRecord.for_scene``); ``film`` (w, h).
-    ``stop`` (progressive.Stop): once set, tasks stop after their pass in flight.
-    ``on_progress(progress, elapsed)`` is called about 10 times a second.  ``state``-like
-    ``stats`` (a dict) receives the measured overheads: ``tasks`` (per task: load_s, seconds,
-    transfer_s), ``merge_s``, ``wall_s``, ``slots``.  The function keeps ``stats["results"]``
-    (the tasks finished so far) up to date, so a second signal can write them."""
+           on_progress=None, stats: dict | None = None):
+    """Render on ``cluster`` (a :class:`Cluster`, or anything with its ``client`` and
+    ``slots``) and return the merged :class:`Accumulator` (None when nothing was rendered).
+    ``record`` is the run's identity (``RunRecord.for_scene``); ``film`` (w, h); ``spp`` or
+    ``time_budget`` as in :func:`progressive.render`.  ``stop`` (progressive.Stop): once set,
+    tasks stop after their pass in flight.  ``on_progress(progress, elapsed)`` (a
+    :class:`Progress`) is called at least 4 times a second.  ``stats`` (a dict) receives
+    ``futures``, ``results`` (the results of the tasks finished so far, kept up to date so
+    that a second signal can write them), ``tasks`` (per task: load_s, seconds, spp, passes,
+    pid, pass_s, bytes, start_s, transfer_s), ``merge_s``, ``wall_s`` and ``slots``."""
     from pathlib import Path
 
     from distributed import Event
@@ -504,7 +547,7 @@ def render(cluster: Cluster, scene_path, record, film: tuple, spp: int | None = 
             if stop is not None and stop.requested and not stop_sent:
                 event.set()
                 stop_sent = True
-            changed.wait(0.1)
+            changed.wait(0.25)
             changed.clear()
             still = []
             for f in pending:
@@ -515,6 +558,9 @@ def render(cluster: Cluster, scene_path, record, film: tuple, spp: int | None = 
                     stats["tasks"].append({"index": r["index"], "load_s": r["load_s"],
                                            "seconds": r["seconds"], "spp": r["spp"],
                                            "passes": r["passes"], "pid": r["pid"],
+                                           "pass_s": list(r.get("pass_s", [])),
+                                           "bytes": int(r["s"].nbytes + r["s2"].nbytes)
+                                           if r["s"] is not None else 0,
                                            "start_s": r["started"] - submitted,
                                            "transfer_s": max(got - r["finished"], 0.0)})
                 else:
