@@ -436,6 +436,10 @@ class DeviceTree:
             self.info = mi.UInt32(tree.info)
             self.depth = mi.UInt32(tree.depth)
             self.trail_lo, self.trail_hi = mi.UInt32(trail_lo), mi.UInt32(trail_hi)
+            # opaque: the same kernel whether or not the arrays were evaluated when traced
+            # (a one-light tree's arrays would otherwise enter the first trace as literals and
+            # the second render would compile again)
+            dr.make_opaque(self.packed, self.info, self.depth, self.trail_lo, self.trail_hi)
         else:
             self.col = {k: np.asarray(v, np.float32) for k, v in cols.items()}
             self.info, self.depth = tree.info, tree.depth
@@ -680,6 +684,8 @@ class LightTreeSelection(LightSelection):
             self.tree_emitter = mi.UInt32(tree_idx.astype(np.uint32))
             self.inf_emitter = mi.UInt32(inf_idx.astype(np.uint32))
             self.inf_pmf = mi.Float(self.inf_pmf_np.astype(np.float32))
+            dr.make_opaque(self.kind_by_id, self.slot_by_id, self.tree_emitter,
+                           self.inf_emitter, self.inf_pmf)
         else:
             self.by_ptr = {e.ptr: (int(kind[j]), int(slot[j])) for j, e in enumerate(self.emitters)}
             self.tree_emitter, self.inf_emitter = tree_idx, inf_idx
