@@ -57,7 +57,7 @@ class NEEPath(IntegratorTemplate):
         *roulette.RR_PARAMS[2:],
         Param("rr_min", "float", 0.1, min=0.001, max=1.0,
               doc="rr=adaptive: smallest survival probability of a vertex."),
-        Param("split_max", "int", 8, min=1, max=64,
+        Param("split_max", "int", 4, min=1, max=64,
               doc="rr=adaptive: largest number of copies a vertex splits into."),
         Param("max_lanes", "int", 1 << 20, min=1 << 10, max=1 << 26,
               doc="rr=adaptive: paths alive at once (bounds memory; split factors are scaled "
