@@ -49,6 +49,9 @@ MUTANTS = [
     ("bdpt-connection-depth-off-by-one", _BDPT,
      "ok = act & (depth_y + depth + 1 <= max_depth)",
      "ok = act & (depth_y + depth + 2 <= max_depth)", _T),
+    # the closed-form reverse density of Mitsuba's diffuse BSDF off by a factor 2
+    ("bdpt-lambert-reverse-pdf", _SUB,
+     "(cos_i > 0), cos_i * dr.inv_pi, 0.0)", "(cos_i > 0), cos_i * dr.inv_two_pi, 0.0)", _T),
     # the camera's density for the light-tracing ratio taken per pixel instead of film-wide
     ("bdpt-camera-pdf-per-pixel", _BDPT,
      "dvcm = dr.select(first, mis(safe_div(1.0, p_film)), dvcm)",

@@ -64,7 +64,8 @@ from ..common import emitted, is_jit, safe_div
 from ..params import Param
 from ..registry import plugin
 from ..sampling import light_selection, roulette
-from ..sampling.subpath import (EmitterTables, LightWalk, Mis, VertexStore, finite_weight,
+from ..sampling.subpath import (EmitterTables, LambertTable, LightWalk, Mis, VertexStore,
+                                finite_weight,
                                 is_delta_sample, reverse_pdf, shading_correction,
                                 spectrum_channels)
 from .base import IntegratorTemplate, SceneError
@@ -153,8 +154,9 @@ class BDPT(IntegratorTemplate):
             dr.scatter_add(sbuf.a, rgb[c], (lane * n + sid) * 3 + c, active)
 
     def tables(self, scene):
+        """(EmitterTables, LambertTable) of ``scene``, built once per scene."""
         if self._tables[0] is not scene:
-            self._tables = (scene, EmitterTables(scene))
+            self._tables = (scene, (EmitterTables(scene), LambertTable(scene)))
         return self._tables[1]
 
     def sample(self, scene, sampler, ray, medium=None, active=True):
@@ -213,7 +215,8 @@ class BDPT(IntegratorTemplate):
         sampler.set_samples_per_wavefront(spp)
         sampler.seed(seed, lanes)
         lane = dr.arange(mi.UInt32, lanes)
-        tables = self.tables(scene)
+        tables, lambert = self.tables(scene)
+        self._lambert = lambert
         store = VertexStore(lanes, cap)
         n_strat = len(self.strategies)
         # per lane and strategy (strategy_images), held in a plain object so that the
@@ -223,7 +226,7 @@ class BDPT(IntegratorTemplate):
         # 1. light subpaths: stored vertices, light tracing onto the film (t = 1)
         pinhole = _is_pinhole(sensor)
         if self.max_depth >= 2:
-            walk = LightWalk(self.mis, self.rr, self.max_depth - 1, self.max_depth - 2)
+            walk = LightWalk(self.mis, self.rr, self.max_depth - 1, self.max_depth - 2, lambert)
             scale = 1.0 / spp_total
             splat = self.light_tracer(scene, sensor, sampler, block_lt, scale) if pinhole \
                 else None
@@ -249,7 +252,7 @@ class BDPT(IntegratorTemplate):
 
     def light_tracer(self, scene, sensor, sampler, block_lt, scale):
         """The t = 1 strategy at a light vertex: connect to the pinhole, weight, splat."""
-        mis, max_depth = self.mis, self.max_depth
+        mis, max_depth, lambert = self.mis, self.max_depth, self._lambert
         alpha = mi.has_flag(sensor.film().flags(), mi.FilmFlags.Alpha)
         offset = mi.Vector2f(block_lt.offset())
         n_strat = len(self.strategies)
@@ -262,7 +265,7 @@ class BDPT(IntegratorTemplate):
             active &= ds.pdf > 0
             wo = si.to_local(ds.d)
             f = bsdf.eval(ctx, si, wo, active) * shading_correction(si, ds.d)
-            p_rev = reverse_pdf(bsdf, ctx, si, wo, active & (dvc > 0))
+            p_rev = reverse_pdf(bsdf, ctx, si, wo, active & (dvc > 0), lambert)
             p_cam = mi.unpolarized_spectrum(w_s)[0] * dr.abs(dr.dot(si.n, ds.d))
             w = self.weight(1.0 + mis(p_cam) * (dvcm + dvc * mis(p_rev)))
             value = beta * f * w_s * (w * scale)
@@ -280,7 +283,7 @@ class BDPT(IntegratorTemplate):
 
     @dr.syntax
     def camera_walk(self, scene, sel, tables, sensor, sampler, store, lane, ray, sbuf=None):
-        mis, max_depth = self.mis, self.max_depth
+        mis, max_depth, lambert = self.mis, self.max_depth, self._lambert
         pinhole = _is_pinhole(sensor)
         ctx = mi.BSDFContext()
         L = mi.Spectrum(0.0)
@@ -344,7 +347,7 @@ class BDPT(IntegratorTemplate):
             # one BSDF call evaluates the light sample's direction and samples the continuation
             f_l, p_fwd_l, bs, w = bsdf.eval_pdf_sample(ctx, si, wo_l, sampler.next_1d(hit),
                                                        sampler.next_2d(hit), hit)
-            p_rev_l = reverse_pdf(bsdf, ctx, si, wo_l, vis & (dvc > 0))
+            p_rev_l = reverse_pdf(bsdf, ctx, si, wo_l, vis & (dvc > 0), lambert)
             is_area_l, pos_pdf_l, dir_pdf_l = tables.lookup(ds_l.emitter, vis)
             pick_l = sel.pmf(ds_l.emitter, vis)
             p_nee_w = safe_div(ds_l.pdf, pick_l)
@@ -364,7 +367,7 @@ class BDPT(IntegratorTemplate):
             # continue with the BSDF sample drawn above (radiance mode)
             spec = is_delta_sample(bs)
             wo = si.to_world(bs.wo)
-            p_rev = reverse_pdf(bsdf, ctx, si, bs.wo, hit & ~spec & (dvc > 0))
+            p_rev = reverse_pdf(bsdf, ctx, si, bs.wo, hit & ~spec & (dvc > 0), lambert)
             cos_out = dr.abs(dr.dot(si.n, wo))
             dvc = dr.select(spec, dvc * mis(cos_out),
                             mis(safe_div(cos_out, bs.pdf)) * (dvc * mis(p_rev) + dvcm))
@@ -382,7 +385,7 @@ class BDPT(IntegratorTemplate):
     @dr.syntax
     def connect(self, scene, store, lane, si, bsdf, beta, dvcm, dvc, depth, active, sbuf=None):
         """Sum over the stored light vertices y_k of the weighted connection z -- y_k."""
-        mis, max_depth = self.mis, self.max_depth
+        mis, max_depth, lambert = self.mis, self.max_depth, self._lambert
         ctx = mi.BSDFContext()
         ctx_l = mi.BSDFContext(mi.TransportMode.Importance)
         L = mi.Spectrum(0.0)
@@ -400,10 +403,10 @@ class BDPT(IntegratorTemplate):
             ok &= dist2 > 0
             wo_c = si.to_local(dirn)
             f_c, p_c = bsdf.eval_pdf(ctx, si, wo_c, ok)
-            p_c_rev = reverse_pdf(bsdf, ctx, si, wo_c, ok & (dvc > 0))
+            p_c_rev = reverse_pdf(bsdf, ctx, si, wo_c, ok & (dvc > 0), lambert)
             wo_y = sy.to_local(-dirn)
             f_y, p_y = bsdf_y.eval_pdf(ctx_l, sy, wo_y, ok)
-            p_y_rev = reverse_pdf(bsdf_y, ctx_l, sy, wo_y, ok & (dvc_y > 0))
+            p_y_rev = reverse_pdf(bsdf_y, ctx_l, sy, wo_y, ok & (dvc_y > 0), lambert)
             inv_d2 = safe_div(1.0, dist2)
             cos_c = dr.abs(dr.dot(si.n, dirn))
             cos_y = dr.abs(dr.dot(sy.n, dirn))

@@ -97,11 +97,42 @@ def with_wi(si, wi):
     return si2
 
 
-def reverse_pdf(bsdf, ctx, si, wo_local, active):
+def reverse_pdf(bsdf, ctx, si, wo_local, active, lambert=None):
     """Density of sampling the direction back along ``si.wi`` when arriving from ``wo_local``.
     Callers mask it with ``dvc > 0``: it only ever multiplies ``dvc`` (zero at a camera
-    subpath's first vertex and after a delta light), so those lanes skip the BSDF call."""
-    return bsdf.pdf(ctx, with_wi(si, wo_local), si.wi, active)
+    subpath's first vertex and after a delta light), so those lanes skip the BSDF call.  With a
+    :class:`LambertTable`, Mitsuba's ``diffuse`` BSDFs take their density in closed form
+    (cos(wi) / pi on the upper hemisphere, whatever the other direction) without a BSDF call."""
+    if lambert is None:
+        return bsdf.pdf(ctx, with_wi(si, wo_local), si.wi, active)
+    lam = lambert.is_lambert(bsdf, active)
+    cos_i = mi.Frame3f.cos_theta(si.wi)
+    closed = dr.select((mi.Frame3f.cos_theta(wo_local) > 0) & (cos_i > 0), cos_i * dr.inv_pi, 0.0)
+    called = bsdf.pdf(ctx, with_wi(si, wo_local), si.wi, active & ~lam)
+    return dr.select(active, dr.select(lam, closed, called), 0.0)
+
+
+class LambertTable:
+    """BSDF registry id -> whether it is Mitsuba's ``diffuse`` (``SmoothDiffuse``), whose
+    sampling density cos(wo) / pi does not depend on the incident direction."""
+
+    def __init__(self, scene):
+        import numpy as np
+        rows = []
+        for shape in scene.shapes():
+            b = shape.bsdf()
+            if b is not None:
+                i = int(np.array(dr.reinterpret_array(mi.UInt32, mi.BSDFPtr(b))).ravel()[0])
+                rows.append((i, str(b).split("[", 1)[0] == "SmoothDiffuse"))
+        table = np.zeros(max([i for i, _ in rows], default=0) + 1, np.float32)
+        for i, lam in rows:
+            table[i] = 1.0 if lam else 0.0
+        self.table = mi.Float(table)
+        self.size = len(table)
+
+    def is_lambert(self, bsdf, active):
+        i = dr.reinterpret_array(mi.UInt32, bsdf)
+        return dr.gather(mi.Float, self.table, i, active & (i < self.size)) > 0.5
 
 
 def shading_correction(si, wo_world):
@@ -241,8 +272,9 @@ class LightWalk:
     (light tracing to the camera).  Random numbers: 1 + 2 + 2 at the start, then per vertex
     whatever ``on_vertex`` draws, 1 + 2 for the BSDF sample, 1 for roulette when it is on."""
 
-    def __init__(self, mis: Mis, roulette: Roulette, max_vertices: int, store_depth: int):
-        self.mis, self.rr = mis, roulette
+    def __init__(self, mis: Mis, roulette: Roulette, max_vertices: int, store_depth: int,
+                 lambert: LambertTable | None = None):
+        self.mis, self.rr, self.lambert = mis, roulette, lambert
         self.max_vertices = int(max_vertices)   # deepest y_i used (segments from the light)
         self.store_depth = int(store_depth)     # deepest y_i stored for connections
 
@@ -322,7 +354,7 @@ class LightWalk:
             bs, w = bsdf.sample(ctx, si, sampler.next_1d(active), sampler.next_2d(active), active)
             wo = si.to_world(bs.wo)
             spec = is_delta_sample(bs)
-            p_rev = reverse_pdf(bsdf, ctx, si, bs.wo, active & ~spec & (dvc > 0))
+            p_rev = reverse_pdf(bsdf, ctx, si, bs.wo, active & ~spec & (dvc > 0), self.lambert)
             cos_out = dr.abs(dr.dot(si.n, wo))
             dvc = dr.select(spec, dvc * mis(cos_out),
                             mis(safe_div(cos_out, bs.pdf)) * (dvc * mis(p_rev) + dvcm))
