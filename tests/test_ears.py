@@ -208,3 +208,34 @@ def test_scene_options_as_nee_path(kw):
         return
     assert_unbiased(scene, {"type": "nee_path", **kw}, ears(**kw), spp=2048, batches=16,
                     max_rel_se=0.015)
+
+
+VARIANT_CHILD = r"""
+import sys, numpy as np, mitsuba as mi, integrators
+mi.set_variant(sys.argv[2])
+scene = mi.load_file(sys.argv[1], res="8")
+try:
+    it = mi.load_dict({"type": "nee_path", "rr": "adaptive", "max_depth": 6})
+except Exception as e:
+    print("REFUSED", [l for l in str(e).splitlines() if "nee_path: " in l][-1])
+    raise SystemExit(0)
+a = np.array(mi.render(scene, integrator=it, spp=256))
+b = np.array(mi.render(scene, integrator=mi.load_dict({"type": "path", "max_depth": 6}), spp=256))
+print("MEANS", float(a.mean()), float(b.mean()))
+"""
+
+
+@pytest.mark.parametrize("variant", ["llvm_ad_spectral", "scalar_rgb"])
+def test_other_variants(variant):
+    """Spectral: renders, and its image mean is path's within 3 % (8x8, 256 spp: a smoke test,
+    not a bias test); scalar: refused in one line naming the parameter and the variant."""
+    r = subprocess.run([sys.executable, "-c", VARIANT_CHILD,
+                        str(ROOT / "scenes" / "cornell_box.xml"), variant],
+                       capture_output=True, text=True, cwd=ROOT, timeout=600)
+    assert r.returncode == 0, r.stderr[-2000:]
+    out = r.stdout.strip().splitlines()[-1]
+    if variant.startswith("scalar"):
+        assert out.startswith("REFUSED nee_path: rr = 'adaptive' needs a JIT variant"), out
+    else:
+        a, b = map(float, out.split()[1:])
+        assert np.isfinite(a) and abs(a / b - 1) < 0.03, out

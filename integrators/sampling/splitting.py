@@ -1,63 +1,78 @@
 r"""Efficiency-aware Russian roulette and splitting (EARS) with real path replication.
 
-**The decision.**  At every vertex x of a path, after the emission found there is counted, the
-light *reflected* at x, L_r(x), is estimated by n(x) independent copies of the rest of the path
-(a BSDF sample, its light sample, and everything behind it), each weighted 1/n(x).  n < 1 is
-Russian roulette (one copy with probability n), n > 1 is splitting into floor(n) or ceil(n)
-copies by stochastic rounding (floor(n + u), u uniform), so the expected number of copies is n
-and the estimate is unbiased for *any* n > 0 chosen before the rounding (tested with random n
-in [0.1, 8] at every vertex).
+**The decision.**  At every vertex x of a path the emission found there and the light samples
+taken there (:meth:`VertexEstimator.direct`, MIS-weighted) are counted once, for the lane that
+reached x.  The rest, the light reflected at x through the BSDF sample, L_r(x), is estimated by
+n(x) independent copies of the continuation (a BSDF sample, its ray, the emission it finds, and
+everything behind it), each weighted 1/n(x).  n < 1 is Russian roulette (one copy with
+probability n), n > 1 splitting into floor(n) or ceil(n) copies by stochastic rounding
+(floor(n + u), u uniform), so the expected number of copies is n and the estimate is unbiased
+for *any* n > 0 chosen before the rounding (tested with random n in [0.1, 8] at every vertex).
+Roulette never drops a vertex's direct light, only what lies behind it.
 
 The efficiency-optimal n (Rath, Grittmann, Herholz, Weier, Slusallek 2022, "EARS:
 Efficiency-Aware Russian Roulette and Splitting"; Vorba & Krivanek 2016, ADRRS): the work
-minimises (sum over pixels of the relative variance) x (total cost).  One copy of the subpath
-from x adds w^2 a(x) / n to the relative variance of its pixel, w = lum(beta)/I_p the path's
-throughput relative to the pixel's value I_p (sqrt(I_p^2 + 0.01), the relMSE's denominator), and n c(x) to the cost, c(x) the cost of one copy.
-Setting the derivative of V C to zero gives
+minimises (sum over pixels of the relative variance) x (total cost).  One copy of the
+continuation from x adds w^2 a(x) / n to the relative variance of its pixel, w = lum(beta) /
+sqrt(I_p^2 + 0.01) the path's throughput relative to its pixel's value I_p (the relMSE's
+denominator), and n c(x) to the cost, c(x) the cost of one copy.  The derivative of V C vanishes
+at
 
     n(x) = w sqrt(a(x) C / (V c(x)))
 
-with V the image's relative variance per camera sample (mean over pixels of Var_p / I_p^2), C
-its cost per camera sample, a(x) the second moment E[L_r^2] where n < 1 (roulette pays the
-whole second moment) and the variance Var[L_r] where n > 1 (splitting averages only the
-variance).  n is clamped to [``rr_min``, ``split_max``].
+with V the image's relative variance per camera sample, C its cost per camera sample (rays, a
+shadow ray counting ``SHADOW_COST``, a camera sample ``CAMERA_COST`` more), a(x) the second
+moment E[L_r^2] where n < 1 (roulette pays the whole second moment; raised by ``RR_MARGIN``,
+since a region's second moment is estimated from few heavy-tailed samples and reads low more
+often than high) and the variance Var[L_r] where n > 1 (splitting averages only the variance).
+n is clamped to [``rr_min``, ``split_max``].  The rule is first-order: at a vertex that carries
+most of its pixel's variance (the first hit of a room lit indirectly) it keeps raising n from
+pass to pass, so ``split_max`` matters there (4 by default).
 
-**What is learned, and where.**  Per region of a :class:`~integrators.sampling.learning.
-RegionGrid` (position and normal octant): sums of L_r, L_r^2, the cost of a copy and the count
-of copies, accumulated from the vertices of the first ``LEARN_DEPTH`` bounces.  Every copy has
-a *record*; every contribution a lane adds to its camera sample is also added (its luminance,
-and the rays it cost) to the records of all its ancestors, so when the camera samples of a batch
-are finished, each record holds its copy's estimate beta_copy L_r and the copy's cost.  Per
-pixel: the running mean of the pixel estimate (the I_p of the rule: a filtered value would spread
-a light's value over its neighbours, whose variance then looks small) and, from the
-last pass, its second moment and cost.  Between passes (:meth:`EARS.learn`) each region gets
-two factors sqrt(M C / (V c)) and sqrt(Var C / (V c)); statistics then decay by ``DECAY``
-so that what is learned follows the changing policy (the cost and the variance behind a vertex
-depend on the decisions made behind it).  A region needs ``MIN_VISITS`` copies before its
-factors are used; until then (and in the first pass) a vertex uses the classic throughput rule
-(n = 1 before ``rr_depth``, then min(max(beta) eta^2, 0.95)).  The learned state lives on the
-integrator per scene, across the passes of ``render --spp`` or ``--time``.
+**What is learned, and where.**  Per region of two
+:class:`~integrators.sampling.learning.RegionGrid` (position and normal octant, a fine one and
+a coarse one used where the fine cell has fewer than ``MIN_VISITS`` copies): sums of L_r,
+L_r^2, the cost of a copy and the count of copies, from the copies made in the first
+``LEARN_DEPTH`` bounces.  Every such copy has a *record*; each lane keeps, per record of its
+ancestors, what it has added since that record was made (registers, no memory traffic per
+bounce), and hands it to the records when it ends or splits (the copies start from zero), so
+when a batch is finished each record holds its copy's beta_copy L_r and cost.  Per pixel: the
+running mean of the pixel estimate (I_p; a filtered value would spread a light's value over its
+neighbours, whose variance then looks small) and, from the last pass, its second moment and
+cost.  Between passes (:meth:`EARS.learn`) each region gets its two factors sqrt(M C / (V c))
+and sqrt(Var C / (V c)); statistics then decay by ``DECAY`` so that what is learned follows
+the changing policy.  Until a region (or its coarse cell) is learned, and in the first pass, a
+vertex uses the classic throughput rule (n = 1 before ``rr_depth``, then
+min(max(beta) eta^2, 0.95)).  The learned state lives on the integrator per scene, across the
+passes of ``render --spp`` or ``--time``.
 
 **Path replication (the wavefront).**  Camera samples are processed in batches.  Per bounce one
-kernel runs over the live lanes: the vertex estimate (:meth:`VertexEstimator.direct`: light
-sample with MIS, BSDF sample), the continuation ray, the MIS-weighted emission it finds
-(:meth:`VertexEstimator.emission`), all scattered (``dr.scatter_reduce``) to the lane's camera
-sample, then n at the new vertex and its rounding.  Then the next wavefront is built: lanes with
-zero copies are dropped (``dr.compress``), lanes with k copies appear k times (an exclusive
-prefix sum of the counts gives each parent's first slot; a scatter of marks and an inclusive
-prefix sum give every slot its parent), and every state array is gathered.  Each lane carries
-its camera sample's index; when a batch has no live lane left, its camera samples are splatted
-into the film (Mitsuba's ``ImageBlock``, with the film's reconstruction filter).
+kernel runs over the live lanes (:meth:`Wavefront.continuation`): the BSDF sample, its ray, the
+MIS-weighted emission it finds (:meth:`VertexEstimator.emission`), the light samples at the new
+vertex, all scattered (``dr.scatter_reduce``) to the lane's camera sample, then n at the new
+vertex and u for its rounding.  Then the next wavefront is built (:meth:`Wavefront.replicate`):
+lanes with zero copies are dropped (``dr.compress``), lanes with k copies appear k times (an
+exclusive prefix sum of the counts gives each parent's first slot; a scatter of marks and an
+inclusive prefix sum give every slot its parent), and the state is gathered (inside the next
+bounce's kernel).  Each lane carries its camera sample's index; when a batch has no live lane
+left, its camera samples are splatted into the film (Mitsuba's ``ImageBlock``, with the film's
+reconstruction filter).  The last lanes of a batch (fewer than ``TAIL_FRACTION`` of its camera
+samples, after the bounces that keep records) finish in one kernel, a loop over the bounces
+with roulette only (:meth:`Wavefront.tail`), instead of a wavefront per bounce.
 
-**Memory.**  At most ``max_lanes`` lanes are alive: a batch starts with ``max_lanes /
-split_max`` camera samples (at least one lane each), and where the expected number of copies
-of a bounce would pass the cap, every n of that bounce is scaled by s = (cap - A) / sum n (A the
-live lanes), computed before the rounding from the n alone (so still unbiased: each copy's
-weight is 1/(s n)), which bounds floor(s n + u) summed over the lanes by s sum n + A <= cap.
-Memory is then independent of the samples per pixel.
+**Memory.**  At most ``max_lanes`` lanes are alive: a batch starts with ``max_lanes / 2``
+camera samples, and where the copies of a bounce could pass the cap, every n of that bounce is
+scaled by s = (cap - A) / sum n (A the live lanes), computed before the rounding from the n
+alone (so still unbiased: each copy's weight is 1/(s n)), which bounds sum floor(s n + u) by
+s sum n + A <= cap.  Memory is then independent of the samples per pixel.
 
 **Cost.**  ``stats`` counts what was traced: camera rays, continuation rays, shadow rays, and
 the camera samples, so comparisons can be made per ray as well as per second.
+
+**Limits.**  JIT variants only (the wavefront is Dr.Jit arrays; ``nee_path`` refuses
+``rr=adaptive`` in scalar variants in one line).  Per ray the wavefront costs more than Mitsuba's
+megakernel (state written and gathered per bounce, a few host synchronisations per bounce),
+which the efficiency figures in ``benchmarks/results/ears`` include.
 """
 from __future__ import annotations
 
