@@ -28,7 +28,7 @@ subpath per camera sample no count factor enters the weights.
 
 **Vertex cap**: light vertices are stored per lane and depth in flat Dr.Jit arrays
 (``lane * cap + k``) with ``cap = max_depth - 2``, so ``max_depth`` must be finite: its default
-is 8 and -1 (unlimited) is refused; 2 <= ``max_depth`` <= 64 (1: emitters seen directly, 0:
+is 8 and -1 (unlimited) is refused; 0 <= ``max_depth`` <= 64 (1: emitters seen directly, 0:
 nothing, as Mitsuba).  Storage is about (27 + channels) x 4 bytes per vertex; renders with more
 samples than fit in ``MEMORY_BUDGET`` are done in chunks of whole samples per pixel (each with its
 own seed) inside one ``render`` call.
