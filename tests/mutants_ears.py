@@ -21,14 +21,17 @@ MUTANTS = [
     ("ears-sample-index-of-rank", _S,
      'sid=dr.gather(mi.UInt32, st["sid"], idx),',
      'sid=dr.gather(mi.UInt32, st["sid"], rank),', _T),
-    # emission found by the continuation weighted with the throughput before the BSDF sample
-    ("ears-emission-old-throughput", _S,
-     "        c += dr.select(act, beta * L_w, 0.0)\n        alive = act",
-     '        c += dr.select(act, st["beta"] * L_w, 0.0)\n        alive = act', _T),
+    # emission found by the continuation without the path's throughput
+    ("ears-emission-without-throughput", _S,
+     "c = dr.select(act, beta * L_w, 0.0)", "c = dr.select(act, L_w, 0.0)", _T),
+    # the light samples at the vertex a continuation reaches counted for every copy made there
+    # later as well as now (weighted with the throughput before the BSDF sample)
+    ("ears-light-samples-old-throughput", _S,
+     "        c += beta * L_nee\n", "        c += beta / dr.maximum(w, 1e-3) * L_nee\n", _T),
     # one bounce too many (max_depth off by one)
     ("ears-depth-limit-off-by-one", _S,
-     "alive = act & si_n.is_valid() & (depth + 1 < limit)\n        self._next",
-     "alive = act & si_n.is_valid() & (depth < limit)\n        self._next", _T),
+     "alive = act & si_n.is_valid() & (depth + 1 < limit)\n        L_nee",
+     "alive = act & si_n.is_valid() & (depth < limit)\n        L_nee", _T),
     # the tail's roulette without its 1/n
     ("ears-tail-roulette-uncompensated", _S,
      "            beta *= copy_weight(q)\n", "", _T),
