@@ -16,8 +16,8 @@ MUTANTS = [
     # a task draws its seeds from a per-process counter instead of its range: a retried task
     # (another process) renders other seeds, and the image depends on the scheduling
     ("distributed-seeds-from-the-process", "integrators/app/distributed.py",
-     "            seed = spec.seed_first + k\n",
-     "            seed = spec.seed_first + k + (os.getpid() % 7)\n",
+     "        seed = spec.seed_first + k\n",
+     "        seed = spec.seed_first + k + (os.getpid() % 7)\n",
      ["test_distributed.py"]),
     # every worker runs Dr.Jit on every core: workers x threads > cores
     ("distributed-threads-not-divided", "integrators/app/distributed.py",
@@ -29,14 +29,12 @@ MUTANTS = [
      "    return bool(Event(spec.stop_event).is_set())",
      "    return False",
      ["test_distributed.py"]),
-    # estimator bugs the spectral colour checker sees: MIS weights 5 % too large (every
-    # integrator), mis3's light sample without its 1/p(light)
+    # an estimator bug the spectral colour checker sees: MIS weights 5 % too large (every
+    # integrator).  (Most planted estimator bugs cannot show in this scene by design: one
+    # environment light, paths of one bounce, no roulette or splitting; they are the other
+    # tests' targets.)
     ("colour-checker-mis-weights-1.05", "integrators/sampling/mis.py",
      "return [x * inv_total for x in s]",
      "return [x * inv_total * 1.05 for x in s]",
-     ["test_colour_checker.py"]),
-    ("colour-checker-mis3-light-without-p3", "integrators/plugins/mis3.py",
-     "L += beta * safe_div(vx.light_term(ls, f, q_b, light_scale=p3), p3)",
-     "L += beta * vx.light_term(ls, f, q_b, light_scale=p3)",
      ["test_colour_checker.py"]),
 ]

@@ -70,7 +70,8 @@ def cluster():
 
 
 # ---------------------------------------------------------------------------------------------
-@pytest.mark.parametrize("w,h,spp,slots", [(32, 18, 64, 2), (32, 18, 5, 2), (32, 18, 1, 2),
+@pytest.mark.parametrize("w,h,spp,slots", [(32, 18, 64, 2), (32, 18, 100, 2), (32, 18, 5, 2),
+                                           (32, 18, 1, 2),
                                            (4096, 4096, 100, 2), (64, 64, 1000, 64),
                                            (64, 64, 7, 1)])
 def test_plan_covers_the_render_with_disjoint_seeds(w, h, spp, slots):
@@ -235,7 +236,7 @@ def test_cli_ctrl_c_stops_the_tasks_and_writes_what_they_rendered(tmp_path):
     env = {**os.environ, "INTEGRATORS_TEST_PAUSE_AT": "pass",
            "INTEGRATORS_TEST_PAUSE_FILE": str(mark)}
     p = subprocess.Popen([sys.executable, "-m", "integrators", "render", str(SCENE), "-D",
-                          "width=32", "-D", "height=18", "--spp", "400000", "--workers", "2",
+                          "width=32", "-D", "height=18", "--spp", "100000", "--workers", "2",
                           "-o", str(out)], cwd=ROOT, env=env, stdout=subprocess.PIPE,
                          stderr=subprocess.PIPE, text=True, start_new_session=True)
     try:
@@ -254,8 +255,8 @@ def test_cli_ctrl_c_stops_the_tasks_and_writes_what_they_rendered(tmp_path):
     assert "SIGINT: stopping the tasks after their pass in flight" in stderr
     assert "Traceback" not in stderr and "stopped by SIGINT" in stdout
     rec = P.read(out).run_record()
-    assert 0 < rec.spp < 400000 and rec.passes >= 1
-    plan = D.plan_spp(32, 18, 400000, 0, 2)
+    assert 0 < rec.spp < 100000 and rec.passes >= 1
+    plan = D.plan_spp(32, 18, 100000, 0, 2)
     for f, l in rec.ranges():             # each range a prefix of a planned task's seeds
         assert any(f == pf and l <= pf + len(pp) - 1 for pf, pp in plan), (f, l)
 

@@ -451,7 +451,7 @@ class Cluster:
             # nobody reads here
             with _sigint_ignored(), dask.config.set(LOCAL_CONFIG):
                 self.cluster = LocalCluster(n_workers=int(workers), threads_per_worker=1,
-                                            processes=True, dashboard_address=None,
+                                            processes=True, dashboard_address=":0",
                                             silence_logs=logging.CRITICAL)
                 self.client = Client(self.cluster, set_as_default=False)
         info = self.client.scheduler_info()["workers"]
