@@ -1,10 +1,10 @@
 """Many-light scenes for the light-tree benchmark and tests: N small sphere lights (N = 64 ...
-16,384 and more) hanging over a large diffuse floor, a "hall of lamps" seen from a low camera, so
-that most lights are far from most shading points.
+16,384 and more) hanging over a diffuse floor, a "hall of lamps" seen from a low camera inside
+it, so that most lights are far from most shading points.
 
-Deterministic (numpy seed): N lights on a jittered sqrt(N) x sqrt(N) grid over a FLOOR x FLOOR
-square (the floor is the same for every N, so more lights means denser lamps), at heights 0.4 to
-3 above it, radii 0.05 to 0.12, radiance spanning three decades (10^U(0, 3), so power spans a
+Deterministic (numpy seed): N lights on a jittered sqrt(N) x sqrt(N) grid over a square whose
+side grows with sqrt(N) (the density is the same for every N: 1,024 lights on 40 m x 40 m; more
+lights make a larger hall, the camera sees the same part of it), at heights 0.4 to 3 above it, radii 0.05 to 0.12, radiance spanning three decades (10^U(0, 3), so power spans a
 bit more with the radii).  A row of eight diffuse pillars casts shadows.  Spheres, not
 rectangles: in Mitsuba 3.9 rectangle emitters make the compiled kernel grow with their number
 (see shared notes), sphere emitters do not.
@@ -21,14 +21,19 @@ from pathlib import Path
 
 import numpy as np
 
-FLOOR = 40.0          # side of the square the lights cover
-CAMERA = dict(origin=(0.0, -18.0, 2.5), target=(0.0, -6.0, 0.3), fov=60)
+FLOOR_1024 = 40.0     # side of the square 1,024 lights cover (the density of every N)
+CAMERA = dict(origin=(0.0, -6.0, 2.5), target=(0.0, 6.0, 0.3), fov=60)
+
+
+def floor_side(n: int) -> float:
+    return FLOOR_1024 * math.sqrt(n / 1024.0)
 
 
 def lights(n: int, seed: int = 15):
     """(centres (n, 3), radii (n,), radiance (n,)) of the n lights."""
     rng = np.random.default_rng(seed)
     side = int(math.ceil(math.sqrt(n)))
+    FLOOR = floor_side(n)
     cell = FLOOR / side
     k = np.arange(n)
     gx, gy = k % side, k // side
@@ -42,7 +47,7 @@ def lights(n: int, seed: int = 15):
 
 def pillars():
     """(centre, half sizes) of the diffuse pillars."""
-    return [((-14.0 + 4.0 * i, -8.0 + 1.5 * (i % 3), 1.5), (0.3, 0.3, 1.5)) for i in range(8)]
+    return [((-14.0 + 4.0 * i, 4.0 + 1.5 * (i % 3), 1.5), (0.3, 0.3, 1.5)) for i in range(8)]
 
 
 def scene_dict(n: int, res: int = 64, spp: int = 16, seed: int = 15, integrator=None) -> dict:
@@ -55,7 +60,7 @@ def scene_dict(n: int, res: int = 64, spp: int = 16, seed: int = 15, integrator=
                     "film": {"type": "hdrfilm", "width": res, "height": res,
                              "rfilter": {"type": "box"}},
                     "sampler": {"type": "independent", "sample_count": spp}},
-         "floor": {"type": "rectangle", "to_world": T().scale(FLOOR / 2 + 4),
+         "floor": {"type": "rectangle", "to_world": T().scale(floor_side(n) / 2 + 4),
                    "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": 0.5}}}}
     if integrator is not None:
         d["integrator"] = integrator
@@ -94,7 +99,8 @@ def xml(n: int, seed: int = 15) -> str:
            '<integer name="height" value="$res"/><rfilter type="box"/></film>',
            '    </sensor>',
            '    <shape type="rectangle">',
-           f'        <transform name="to_world"><scale value="{FLOOR / 2 + 4}"/></transform>',
+           f'        <transform name="to_world"><scale value="{floor_side(n) / 2 + 4}"/>'
+           '</transform>',
            '        <bsdf type="diffuse"><rgb name="reflectance" value="0.5"/></bsdf>',
            '    </shape>']
     for (c, h) in pillars():
