@@ -8,7 +8,8 @@ lit Cornell box), in one process and side by side:
 1. **Relative error against time** for Mitsuba's ``path``, ``nee_path``, ``bdpt`` (where the
    scene allows it) and ``pssmlt``: each method renders in passes of ``PASS_SPP`` samples (or
    mutations) per pixel, seeds 0, 1, ... (pssmlt's passes continue one run's chains), until the
-   time budget; after each pass the running mean is compared with the reference (relMSE, the
+   time budget (repeat r starts at seed ``seed0 + 100000 r``, so repeats are independent
+   runs); after each pass the running mean is compared with the reference (relMSE, the
    experiments' metric: mean of (x - ref)^2 / (ref^2 + 0.01)).  The methods take turns, in an
    order that alternates between repeats, so that the load of a shared machine falls on all of
    them.  Times include everything a render does (pssmlt's bootstrap, bdpt's light paths) but
@@ -116,11 +117,12 @@ class Bench:
         except Exception as e:          # bdpt refuses some scenes / depths
             return str(e).splitlines()[0]
 
-    def timed(self, scene, integ, ref, budget):
-        """Passes until ``budget`` seconds: [(seconds, spp, relMSE, regions)], stats."""
+    def timed(self, scene, integ, ref, budget, seed0=0):
+        """Passes until ``budget`` seconds: [(seconds, spp, relMSE, regions)], stats.
+        Seeds seed0, seed0 + 1, ...: a repeat with another seed0 is an independent run."""
         mi = self.mi
-        mi.render(scene, integrator=integ, spp=1, seed=1_000_000)   # compile (another run)
-        acc, n, seed, points = None, 0, 0, []
+        mi.render(scene, integrator=integ, spp=1, seed=3_000_000_000)   # compile (another run)
+        acc, n, seed, points = None, 0, seed0, []
         t0 = time.perf_counter()
         next_cp = budget / 64
         while True:
@@ -153,7 +155,8 @@ class Bench:
                     rows[m] = {"refused": integ}
                     continue
                 try:
-                    points, stats = self.timed(scene, integ, ref, self.args.budget)
+                    points, stats = self.timed(scene, integ, ref, self.args.budget,
+                                               self.args.seed0 + 100_000 * r)
                 except Exception as e:
                     rows[m] = {"refused": str(e).splitlines()[0]}
                     continue
@@ -354,7 +357,9 @@ def main(argv=None):
     p.add_argument("--ref-spp", type=int, default=16384)
     p.add_argument("--scenes", default=",".join(SCENES))
     p.add_argument("--methods", default=",".join(METHODS))
-    p.add_argument("--startup-spp", default="1,4,16")
+    p.add_argument("--startup-spp", default="1,4,16", help="'' to skip the start-up study")
+    p.add_argument("--seed0", type=int, default=0,
+                   help="first seed (repeat r starts at seed0 + 100000 r: independent runs)")
     p.add_argument("--cache", default=str(REPO / "benchmarks" / "results" / "pssmlt" / "cache"))
     p.add_argument("--out", default=str(OUT))
     p.add_argument("--quick", action="store_true", help="tiny settings (a smoke run)")
