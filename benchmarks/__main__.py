@@ -4,6 +4,7 @@ r"""``python -m benchmarks COMMAND [ARGS]``: one entry point for the benchmarks.
     python -m benchmarks speed [...]        (= python -m benchmarks.speed)
     python -m benchmarks efficiency [...]   (= python -m benchmarks.efficiency)
     python -m benchmarks memory [...]       (= python -m benchmarks.memory)
+    python -m benchmarks distributed [...]  (= python -m benchmarks.distributed)
 
 ``run`` is the experiments of :mod:`benchmarks.run` (error against time per scene and method,
 charts, image grids, report); the others are the older single-purpose benchmarks.
@@ -18,6 +19,7 @@ COMMANDS = {
     "speed": "benchmarks.speed",
     "efficiency": "benchmarks.efficiency",
     "memory": "benchmarks.memory",
+    "distributed": "benchmarks.distributed",
 }
 
 
