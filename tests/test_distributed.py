@@ -218,6 +218,24 @@ def test_bad_cluster_options_are_one_line(tmp_path, args, says):
     assert not (tmp_path / "x.exr").exists()
 
 
+def test_cli_on_an_existing_scheduler(tmp_path, cluster):
+    """``--scheduler ADDRESS``: the command uses the running cluster (the module's LocalCluster
+    here) and leaves it running; the output equals the same render in this process (sums to
+    float64 order; the file holds float32)."""
+    out = tmp_path / "s.exr"
+    address = cluster.cluster.scheduler_address
+    r = _cli("render", str(SCENE), "-D", "width=32", "-D", "height=18", "--spp", "32",
+             "--seed", "77", "--scheduler", address, "-o", str(out))
+    assert r.returncode == 0, r.stderr
+    assert f"Dask cluster {address}" in r.stdout and r.stderr.strip() == ""
+    got = P.read(out)
+    assert got.run_record().ranges() == [(77, 78), (79, 80), (81, 82), (83, 84)]
+    scene, _ = _scene_and_record()
+    want = P.render(scene, spp=32, seed=77)
+    np.testing.assert_allclose(got.mean(), want.mean().astype(np.float32), rtol=1e-6, atol=1e-7)
+    assert cluster.client.status == "running"          # the cluster is still there
+
+
 def test_cli_time_budget_on_two_workers(tmp_path):
     out = tmp_path / "t.exr"
     r = _cli("render", str(SCENE), "-D", "width=32", "-D", "height=18", "--time", "2",
