@@ -67,9 +67,42 @@ class IntegratorTemplate:
     def aov_names(self):
         return []
 
+    def base_render(self, scene, sensor=0, seed=0, spp=0, develop=True, evaluate=True):
+        """Mitsuba's own ``render`` from a ``render`` override, with SIGINT still reaching
+        Python.
+
+        ``mi.render`` enters Mitsuba's ``render`` binding, which installs a SIGINT handler that
+        cancels the render and passes the signal on to the handler it replaced; an override
+        that calls the binding again nests a second handler whose "replaced" one is Mitsuba's
+        own, so the signal never reaches Python (Ctrl-C ignored for the rest of the process).
+        Re-installing Python's handler right before and after the inner call keeps the chain
+        ending in Python (main thread only: elsewhere signals are the main thread's)."""
+        with _python_sigint():
+            return self._base.render(self, scene, sensor, seed, spp, develop, evaluate)
+
     def to_string(self):
         body = ",\n".join(f"  {k} = {v!r}" for k, v in self.params.items())
         return f"{self.NAME}[\n{body}\n]"
+
+
+class _python_sigint:
+    """Re-install Python's SIGINT handler at the C level on entry and exit (main thread)."""
+
+    def __enter__(self):
+        self._reinstall()
+
+    def __exit__(self, *exc):
+        self._reinstall()
+        return False
+
+    @staticmethod
+    def _reinstall():
+        import signal
+        import threading
+        if threading.current_thread() is threading.main_thread():
+            h = signal.getsignal(signal.SIGINT)
+            if h is not None:
+                signal.signal(signal.SIGINT, h)
 
 
 # ---- what a scene may hold ---------------------------------------------------------------

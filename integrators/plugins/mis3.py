@@ -234,7 +234,7 @@ class MIS3(IntegratorTemplate):
         """One call of Mitsuba's render, then (while learning) learn from its statistics."""
         self._depth += 1
         try:
-            img = self._base.render(self, scene, sensor, seed, spp, develop, evaluate)
+            img = self.base_render(scene, sensor, seed, spp, develop, evaluate)
         finally:
             self._depth -= 1
         if self.recording and self._depth == 0:   # (the kernel recorded statistics)

@@ -103,7 +103,7 @@ class NEEPath(IntegratorTemplate):
         :mod:`integrators.sampling.splitting` (path replication), which then learns from the
         pass for the next one."""
         if not self.adaptive:
-            return self._base.render(self, scene, sensor, seed, spp, develop, evaluate)
+            return self.base_render(scene, sensor, seed, spp, develop, evaluate)
         self.prepare(scene)
         if isinstance(sensor, int):
             sensor = scene.sensors()[sensor]
