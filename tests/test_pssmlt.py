@@ -193,9 +193,13 @@ def test_blocks_match_path_small_image():
 @pytest.mark.slow
 @pytest.mark.parametrize("which", ["cornell", "glass_shade"])
 def test_image_mean_matches_path_within_1_percent(which):
-    """As test_image_mean_matches_path with the power to see a 1 % bias (guard 0.25 %)."""
-    scene = cornell(16) if which == "cornell" else glass_shade(16)
-    _compare(scene, 200, 128, 64, 4096, 16, 0.0025, bootstrap=65536)
+    """As test_image_mean_matches_path with the power to see a 1 % bias (guard 0.25 %).  The
+    glass shade's mean is as noisy as its b (heavy-tailed: the lamp is found through glass
+    only), hence its larger bootstrap."""
+    if which == "cornell":
+        _compare(cornell(16), 200, 128, 64, 4096, 16, 0.0025, bootstrap=65536)
+    else:
+        _compare(glass_shade(16), 160, 64, 64, 4096, 16, 0.0025, bootstrap=524288)
 
 
 @pytest.mark.slow
