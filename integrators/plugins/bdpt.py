@@ -65,10 +65,10 @@ from ..params import Param
 from ..registry import plugin
 from ..sampling import light_selection, roulette
 from ..sampling.subpath import (EmitterTables, LambertTable, LightWalk, Mis, VertexStore,
-                                finite_weight,
+                                environment_direction_pdf, finite_weight,
                                 is_delta_sample, reverse_pdf, shading_correction,
                                 spectrum_channels)
-from .base import IntegratorTemplate, SceneError
+from .base import HIDE_EMITTERS, IntegratorTemplate, SceneError, _on_emitter, skip_emitters
 
 MAX_BDPT_DEPTH = 64
 #: bytes of stored light vertices per chunk of samples (chunks hold whole samples per pixel)
@@ -90,9 +90,11 @@ class BDPT(IntegratorTemplate):
                   "strategies with strategy_images)."),
         Param("beta", "float", 2.0, min=0.0, min_exclusive=True,
               doc="Exponent of the power heuristic."),
-        Param("light_selection", "choice", "power", choices=("uniform", "power"),
-              doc="Discrete pdf for choosing the light of a light subpath and of a light "
-                  "sample."),
+        Param("light_selection", "choice", "power", choices=light_selection.MODES,
+              doc="Discrete pdf for choosing the light of a light sample (next-event "
+                  "estimation); the light subpath starts by the same pmf for uniform and "
+                  "power, by power for adaptive and bvh (it has no shading point)."),
+        HIDE_EMITTERS,
         Param("strategy_images", "bool", False,
               doc="Also write the weighted contribution of every strategy (s, t) as AOV "
                   "layers s<s>_t<t>.R/G/B (their sum is the image)."),
@@ -103,6 +105,9 @@ class BDPT(IntegratorTemplate):
         self.strategies = strategy_list(self.max_depth) if self.strategy_images else []
         self.rr = roulette.Roulette.from_params(self.params)
         self.lights = light_selection.SelectionCache(self.light_selection)
+        # the light subpath has no shading point: adaptive and bvh start it by power
+        self.lights_e = light_selection.SelectionCache("power") \
+            if self.light_selection in ("adaptive", "bvh") else None
         self._tables = (None, None)
 
     # ---- checks ---------------------------------------------------------------------------
@@ -121,19 +126,25 @@ class BDPT(IntegratorTemplate):
         if mi.has_flag(sensor.film().flags(), mi.FilmFlags.Special):
             raise SceneError(f"{name}: film {str(sensor.film()).split('[', 1)[0]} is not "
                              "supported; use 'hdrfilm'")
+        allowed = "allowed: area, point and spot lights, constant and envmap environments"
         for e in scene.emitters():
-            if mi.has_flag(e.flags(), mi.EmitterFlags.Infinite):
-                kind = str(e).split("[", 1)[0]
-                raise SceneError(f"{name}: emitter {kind} (infinite) is not supported; "
-                                 "allowed: area, point and spot lights (use nee_path)")
             shape = e.get_shape()
             kind = str(e).split("[", 1)[0]
+            if mi.has_flag(e.flags(), mi.EmitterFlags.Infinite):
+                if mi.has_flag(e.flags(), mi.EmitterFlags.Delta):
+                    raise SceneError(f"{name}: emitter {kind} (infinite, delta direction) is "
+                                     f"not supported; {allowed} (use nee_path)")
+                continue
             if shape is None and kind not in ("PointLight", "SpotLight"):
-                raise SceneError(f"{name}: emitter {kind} is not supported; allowed: area, "
-                                 "point and spot lights")
+                raise SceneError(f"{name}: emitter {kind} is not supported; {allowed}")
             if shape is not None and not _uniform_on_shape(e, shape):
                 raise SceneError(f"{name}: area emitter on shape '{shape.id()}' has a "
                                  "spatially varying radiance; allowed: constant radiance")
+
+    def emission_selection(self, scene, sel):
+        """The light pmf of the light subpath's start: ``sel`` itself for a pmf independent of
+        the shading point (uniform, power), else the power pmf."""
+        return sel if self.lights_e is None else self.lights_e(scene)
 
     def aov_names(self):
         return [f"s{s_}_t{t}.{c}" for s_, t in self.strategies for c in "RGB"]
@@ -230,7 +241,9 @@ class BDPT(IntegratorTemplate):
             scale = 1.0 / spp_total
             splat = self.light_tracer(scene, sensor, sampler, block_lt, scale) if pinhole \
                 else None
-            walk.walk(scene, sel, tables, sampler, store, lane, mi.Bool(True), splat)
+            sel_e = self.emission_selection(scene, sel)
+            walk.walk(scene, sel_e, tables, sampler, store, lane, mi.Bool(True), splat,
+                      nee_sel=None if sel_e is sel else sel)
         store.evaluate()
         sampler.schedule_state()
         dr.eval(block_lt.tensor())
@@ -253,6 +266,7 @@ class BDPT(IntegratorTemplate):
     def light_tracer(self, scene, sensor, sampler, block_lt, scale):
         """The t = 1 strategy at a light vertex: connect to the pinhole, weight, splat."""
         mis, max_depth, lambert = self.mis, self.max_depth, self._lambert
+        hide = self.hide_emitters
         alpha = mi.has_flag(sensor.film().flags(), mi.FilmFlags.Alpha)
         offset = mi.Vector2f(block_lt.offset())
         n_strat = len(self.strategies)
@@ -270,7 +284,11 @@ class BDPT(IntegratorTemplate):
             w = self.weight(1.0 + mis(p_cam) * (dvcm + dvc * mis(p_rev)))
             value = beta * f * w_s * (w * scale)
             active &= dr.any(value != 0)
-            active &= ~scene.ray_test(si.spawn_ray_to(ds.p), active)
+            if dr.hint(hide, mode="scalar"):   # the camera sees no emitter, and through them
+                active &= ~_on_emitter(si)
+                active &= ~_occluded_by_non_emitters(scene, si.spawn_ray_to(ds.p), active)
+            else:
+                active &= ~scene.ray_test(si.spawn_ray_to(ds.p), active)
             rgb = _to_rgb(value)
             vals = [rgb[0], rgb[1], rgb[2]] + ([mi.Float(0.0)] if alpha else []) + \
                 [mi.Float(0.0)]
@@ -284,7 +302,9 @@ class BDPT(IntegratorTemplate):
     @dr.syntax
     def camera_walk(self, scene, sel, tables, sensor, sampler, store, lane, ray, sbuf=None):
         mis, max_depth, lambert = self.mis, self.max_depth, self._lambert
+        sel_e = self.emission_selection(scene, sel)
         pinhole = _is_pinhole(sensor)
+        hide = self.hide_emitters
         ctx = mi.BSDFContext()
         L = mi.Spectrum(0.0)
         beta = mi.Spectrum(1.0)
@@ -298,12 +318,35 @@ class BDPT(IntegratorTemplate):
         active = mi.Bool(True)
         valid = mi.Bool(False)
         while dr.hint(active, label="bdpt camera walk"):
-            si = scene.ray_intersect(ray, active)
-            hit = active & si.is_valid()
             first = depth == 1
+            if dr.hint(hide, mode="scalar"):     # area emitters transparent to camera rays
+                si = scene.ray_intersect(ray, active & ~first)
+                si = dr.select(first, skip_emitters(scene, ray, active & first), si)
+                dist2 = dr.squared_norm(si.p - ray.o)
+            else:
+                si = scene.ray_intersect(ray, active)
+                dist2 = dr.square(si.t)
+            hit = active & si.is_valid()
             valid |= first & hit
             cos_in = dr.abs(dr.dot(si.n, ray.d))
-            dist2 = dr.square(si.t)
+
+            # s = 0 on the environment: the camera subpath escapes (the ratios as after the
+            # last scattering: y0 is a direction, so no d^2 and no cosine at the light end)
+            esc = active & ~si.is_valid()
+            em_env = si.emitter(scene)
+            le_env = emitted(scene, si, esc)
+            esc &= dr.any(le_env != 0)
+            it_prev = dr.zeros(mi.Interaction3f)
+            it_prev.p, it_prev.n = prev_p, prev_n
+            pick_env = sel.pmf_at(it_prev, em_env, esc & ~first)     # next-event estimation's
+            pick_env_e = sel_e.pmf(em_env, esc)                      # the light subpath's
+            _, disk_pdf, _ = tables.lookup(em_env, esc)
+            p_env = environment_direction_pdf(em_env, ray.d, esc & ~first)
+            w_env = self.weight(1.0 + mis(pick_env * p_env) * dvcm
+                                + mis(pick_env_e * p_env * disk_pdf) * dvc)
+            w_env = dr.select(first, 0.0 if hide else 1.0, w_env)
+            L += dr.select(esc, beta * le_env * w_env, 0.0)
+            self.record(sbuf, lane, strategy_id(0, depth), beta * le_env * w_env, esc)
             # the first hit: light tracing's density relative to the camera's (0 for a
             # radiancemeter, whose delta direction no light subpath can reach)
             if dr.hint(pinhole, mode="scalar"):
@@ -322,14 +365,13 @@ class BDPT(IntegratorTemplate):
             le = emitted(scene, si, hit)
             hit_light = hit & dr.any(le != 0)
             _, pos_pdf, _ = tables.lookup(em, hit_light)
-            pick = sel.pmf(em, hit_light)
-            it_prev = dr.zeros(mi.Interaction3f)
-            it_prev.p, it_prev.n = prev_p, prev_n
+            pick = sel.pmf_at(it_prev, em, hit_light & ~first)     # next-event estimation's
+            pick_e = sel_e.pmf(em, hit_light)                       # the light subpath's
             ds_e = mi.DirectionSample3f(scene, si, it_prev)
             p_nee = em.pdf_direction(it_prev, ds_e, hit_light & ~first)
             direct_a = pick * p_nee * cos_in * safe_div(1.0, dist2)
-            emission_w = pick * pos_pdf * cos_in * dr.inv_pi
-            w0 = dr.select(first, 1.0,
+            emission_w = pick_e * pos_pdf * cos_in * dr.inv_pi
+            w0 = dr.select(first, 0.0 if hide else 1.0,
                            self.weight(1.0 + mis(direct_a) * dvcm + mis(emission_w) * dvc))
             L += dr.select(hit_light, beta * le * w0, 0.0)
             self.record(sbuf, lane, strategy_id(0, depth), beta * le * w0, hit_light)
@@ -339,8 +381,8 @@ class BDPT(IntegratorTemplate):
 
             # s = 1: next-event estimation
             nee = smooth & (depth + 1 <= max_depth)
-            ds_l, w_em, _ = sel.sample_direction(si, sampler.next_1d(nee), sampler.next_2d(nee),
-                                                 nee)
+            ds_l, w_em, norm = sel.sample_direction(si, sampler.next_1d(nee),
+                                                    sampler.next_2d(nee), nee)
             vis = nee & dr.any(w_em != 0)
             vis &= ~scene.ray_test(si.spawn_ray_to(ds_l.p), vis)
             wo_l = si.to_local(ds_l.d)
@@ -349,12 +391,18 @@ class BDPT(IntegratorTemplate):
                                                        sampler.next_2d(hit), hit)
             p_rev_l = reverse_pdf(bsdf, ctx, si, wo_l, vis & (dvc > 0), lambert)
             is_area_l, pos_pdf_l, dir_pdf_l = tables.lookup(ds_l.emitter, vis)
-            pick_l = sel.pmf(ds_l.emitter, vis)
+            inf_l = tables.infinite(ds_l.emitter, vis)
+            pick_l = sel.pmf_at(si, ds_l.emitter, vis, norm)
             p_nee_w = safe_div(ds_l.pdf, pick_l)
             cos_z = dr.abs(dr.dot(si.n, ds_l.d))
+            # emission density over next-event estimation's, in z's area measure: an
+            # environment's emission samples the same direction, then the disk (p_disk cos_z)
             ratio = dr.select(is_area_l, safe_div(pos_pdf_l * cos_z, dr.pi * p_nee_w),
-                              dir_pdf_l * cos_z * safe_div(1.0, dr.square(ds_l.dist)))
+                              dr.select(inf_l, pos_pdf_l * cos_z,
+                                        dir_pdf_l * cos_z * safe_div(1.0, dr.square(ds_l.dist))))
             w_light = dr.select(ds_l.delta, 0.0, mis(safe_div(p_fwd_l, ds_l.pdf)))
+            if dr.hint(sel_e is not sel, mode="scalar"):   # the light subpath's pmf differs
+                ratio *= safe_div(sel_e.pmf(ds_l.emitter, vis), pick_l)
             w_cam = mis(ratio) * (dvcm + dvc * mis(p_rev_l))
             w1 = self.weight(w_light + 1.0 + w_cam)
             L += dr.select(vis, beta * f_l * w_em * w1, 0.0)
@@ -420,6 +468,20 @@ class BDPT(IntegratorTemplate):
             self.record(sbuf, lane, strategy_id(depth_y + 1, depth_y + depth + 1), contrib, ok)
             k += 1
         return L
+
+
+@dr.syntax
+def _occluded_by_non_emitters(scene, ray, active):
+    """Whether a surface other than an emitting shape lies on ``ray`` (up to ``ray.maxt``):
+    the visibility of the camera under ``hide_emitters``, for which area emitters are
+    transparent."""
+    target = ray.o + ray.d * ray.maxt
+    si = scene.ray_intersect(ray, active)
+    skip = mi.Bool(active) & _on_emitter(si)
+    while dr.hint(skip, label="bdpt skip emitters"):
+        si = scene.ray_intersect(si.spawn_ray_to(target), skip)
+        skip &= _on_emitter(si)
+    return active & si.is_valid() & ~_on_emitter(si)
 
 
 class _Buffer:

@@ -30,10 +30,16 @@ factor is raised to ``beta`` separately (``Mis``), which gives the power heurist
 Updates (``Mis`` applied to every factor; cosines use the geometric normal; d the segment
 length):
 
-* start of a light walk at y0 (area light, position pdf p_A, cosine direction pdf p_w):
-  ``dvc = cos0 / (p_A p_w)``; at the first hit y1: ``dvcm = p_nee_w(y1 -> y0) cos0 / (p_A p_w)``
-  (next-event estimation's density of y0, the selection probability cancels); a delta light
+* start of a light walk at y0 (area light chosen with probability p_sel, position pdf p_A,
+  cosine direction pdf p_w): ``dvc = cos0 / (p_sel p_A p_w)``; at the first hit y1: ``dvcm = p_nee_w(y1 -> y0) cos0 / (p_A p_w)``
+  (next-event estimation's density of y0; the selection probability cancels, or, when
+  next-event estimation picks lights by another pmf (``nee_sel``: adaptive, bvh), the ratio
+  of its pmf at y1 to the light subpath's enters ``dvcm``); a delta light
   (point, spot; direction pdf p_w): ``dvc = 0`` (no strategy hits it), ``dvcm = d^2 / p_w``;
+  an environment (direction pdf p_dir, then a point on the disk perpendicular to it that covers
+  the scene's bounding sphere, area pdf p_disk = 1/(pi r^2); as pbrt-v4's BDPT and SmallVCM):
+  ``dvc = 1 / (p_sel p_dir p_disk)``, ``dvcm = p_nee_w(direction) / (p_dir p_disk)`` at y1, with no
+  d^2 and no cosine at the light end (y0 is a direction);
 * start of a camera walk: ``dvcm = 1 / p_film_w`` (the film-wide solid-angle density of the
   camera ray, so that light tracing with one light path per camera sample needs no count
   factor), ``dvc = 0`` (no strategy hits the pinhole);
@@ -216,10 +222,12 @@ class VertexStore:
 # ---- emitter tables ------------------------------------------------------------------------------
 class EmitterTables:
     """Per-emitter constants the light walk and the weights need, gathered by emitter id:
-    ``is_area`` (1 for an area light), ``pos_pdf`` (1/area: the area light's position density,
-    uniform on its shape), ``dir_pdf`` (a delta light's constant direction density: 1/(4 pi)
-    for a point light, 1/(2 pi (1 - cos cutoff)) for a spot, measured from Mitsuba's own
-    ``sample_ray``)."""
+    ``is_area`` (1 for an area light), ``is_inf`` (1 for an environment: ``constant``,
+    ``envmap``), ``pos_pdf`` (1/area: the area light's position density, uniform on its shape;
+    for an environment the area density 1/(pi r^2) of the point on the disk, perpendicular to
+    the emitted direction, that covers the scene's bounding sphere), ``dir_pdf`` (a delta
+    light's constant direction density: 1/(4 pi) for a point light, 1/(2 pi (1 - cos cutoff))
+    for a spot, measured from Mitsuba's own ``sample_ray``)."""
 
     def __init__(self, scene):
         import numpy as np
@@ -227,6 +235,7 @@ class EmitterTables:
         ids = np.array(dr.reinterpret_array(mi.UInt32, scene.emitters_dr()), dtype=np.int64)
         n = int(ids.max()) + 1 if len(ids) else 1
         is_area = np.zeros(n, np.float32)
+        is_inf = np.zeros(n, np.float32)
         pos_pdf = np.zeros(n, np.float32)
         dir_pdf = np.zeros(n, np.float32)
         for e, i in zip(emitters, ids):
@@ -234,9 +243,13 @@ class EmitterTables:
             if shape is not None:
                 is_area[i] = 1.0
                 pos_pdf[i] = 1.0 / max(float(shape.surface_area()[0]), 1e-30)
+            elif mi.has_flag(e.flags(), mi.EmitterFlags.Infinite):
+                is_inf[i] = 1.0
+                pos_pdf[i] = environment_disk_pdf(e, scene)
             else:
                 dir_pdf[i] = delta_direction_pdf(e)
         self.is_area = mi.Float(is_area)
+        self.is_inf = mi.Float(is_inf)
         self.pos_pdf = mi.Float(pos_pdf)
         self.dir_pdf = mi.Float(dir_pdf)
 
@@ -245,6 +258,46 @@ class EmitterTables:
         return (dr.gather(mi.Float, self.is_area, i, active) > 0.5,
                 dr.gather(mi.Float, self.pos_pdf, i, active),
                 dr.gather(mi.Float, self.dir_pdf, i, active))
+
+    def infinite(self, emitter, active):
+        """Whether ``emitter`` is an environment (``constant``, ``envmap``)."""
+        i = dr.reinterpret_array(mi.UInt32, emitter)
+        return dr.gather(mi.Float, self.is_inf, i, active) > 0.5
+
+
+def environment_direction_pdf(emitter, d_env, active):
+    """Solid-angle density of the environment direction ``d_env`` (pointing from the scene
+    towards the environment) under the emitter's own direction sampling (``sample_ray`` and
+    ``sample_direction`` share it), without the selection probability."""
+    it = dr.zeros(mi.Interaction3f)
+    ds = dr.zeros(mi.DirectionSample3f)
+    ds.d = d_env
+    ds.emitter = emitter
+    return emitter.pdf_direction(it, ds, active)
+
+
+def environment_disk_pdf(emitter, scene) -> float:
+    """Area density 1/(pi r^2) of the emitted ray's origin on the disk of ``sample_ray``
+    (r: the radius of the emitter's own bounding sphere), measured from Mitsuba's weights:
+    weight = L / (p_dir p_disk), so p_disk = L / (p_dir weight)."""
+    import numpy as np
+    n = 64
+    u = mi.Point2f(dr.linspace(mi.Float, 0.05, 0.95, n), dr.linspace(mi.Float, 0.9, 0.1, n))
+    ray, w = emitter.sample_ray(0.0, 0.5, mi.Point2f(0.5, 0.5), u, True)
+    si = dr.zeros(mi.SurfaceInteraction3f)
+    si.wi = ray.d                       # the environment is seen along -ray.d
+    si.p = ray.o
+    le = emitter.eval(si, True)
+    p_dir = environment_direction_pdf(emitter, -ray.d, True)
+    a = np.array(mi.unpolarized_spectrum(le)[0], dtype=np.float64).ravel()
+    b = np.array(mi.unpolarized_spectrum(w)[0], dtype=np.float64).ravel()
+    p = np.array(p_dir, dtype=np.float64).ravel()
+    a, b, p = np.broadcast_arrays(a, b, p)
+    ok = (a > 0) & (b > 0) & (p > 0) & np.isfinite(a) & np.isfinite(b)
+    if ok.any():
+        return float(np.median(a[ok] / (p[ok] * b[ok])))
+    r = float(scene.bbox().bounding_sphere().radius)      # a black environment
+    return 1.0 / (np.pi * max(r * r, 1e-30))
 
 
 def delta_direction_pdf(emitter) -> float:
@@ -279,16 +332,20 @@ class LightWalk:
         self.store_depth = int(store_depth)     # deepest y_i stored for connections
 
     def start(self, scene, sel, tables, sampler, active):
-        """Sample y0 and the first direction: (ray, beta, dvc, pdf_e, is_area, y0, n0, cos0)
-        with ``pdf_e`` the emission density without the selection probability."""
+        """Sample y0 and the first direction: (emitter, ray, beta, dvc, pdf_e, area, inf, y0,
+        n0, cos0, p_dir, active) with ``pdf_e`` the emission density without the selection
+        probability (area light: p_A p_w; delta light: p_w; environment: p_dir p_disk) and
+        ``p_dir`` an environment's direction density (next-event estimation's density of y0
+        seen from y1: a direction, so no distance or cosine at the light end)."""
         u_sel = sampler.next_1d(active)
         u_pos = sampler.next_2d(active)
         u_dir = sampler.next_2d(active)
         emitter, pick = sel.sample(u_sel, active)
         active = active & (pick > 0)
-        is_area, _, dir_pdf = tables.lookup(emitter, active)
+        is_area, pos_pdf, dir_pdf = tables.lookup(emitter, active)
         area = active & is_area
-        delta = active & ~is_area
+        inf = active & ~is_area & tables.infinite(emitter, active)
+        other = active & ~is_area
         # area light: uniform position on the shape, cosine-weighted direction
         ps, _ = emitter.sample_position(0.0, u_pos, area)
         local = mi.warp.square_to_cosine_hemisphere(u_dir)
@@ -298,22 +355,26 @@ class LightWalk:
         pdf_area = ps.pdf * local.z * dr.inv_pi
         ray_area = si0.spawn_ray(si0.to_world(local))
         beta_area = le * safe_div(dr.pi, ps.pdf)
-        # delta light (point, spot): Mitsuba's own emitted-ray sampler
-        ray_d, w_d = emitter.sample_ray(0.0, 0.5, u_pos, u_dir, delta)
+        # delta light (point, spot) and environment (a direction, then a point on the disk
+        # covering the bounding sphere): Mitsuba's own emitted-ray sampler
+        ray_d, w_d = emitter.sample_ray(0.0, 0.5, u_pos, u_dir, other)
+        p_dir = environment_direction_pdf(emitter, -ray_d.d, inf)
         ray = dr.select(area, ray_area, ray_d)
         beta = dr.select(area, beta_area, w_d) * safe_div(1.0, pick)
-        pdf_e = dr.select(area, pdf_area, dir_pdf)
+        pdf_e = dr.select(area, pdf_area, dr.select(inf, p_dir * pos_pdf, dir_pdf))
         cos0 = dr.select(area, local.z, 1.0)
-        dvc = dr.select(area, self.mis(safe_div(cos0, pdf_e)), 0.0)
+        # the selection probability is part of the emission density (as the camera side's
+        # ratios of hitting this light include it); it cancels in dvcm at y1
+        dvc = dr.select(area | inf, self.mis(safe_div(cos0, pick * pdf_e)), 0.0)
         beta = dr.select(active, beta, 0.0)
-        return emitter, ray, beta, dvc, pdf_e, area, ps.p, ps.n, cos0, active
+        return emitter, ray, beta, dvc, pdf_e, area, inf, ps.p, ps.n, cos0, p_dir, active
 
     @dr.syntax
     def walk(self, scene, sel, tables, sampler, store: VertexStore, lane, active,
-             on_vertex=None):
+             on_vertex=None, nee_sel=None):
         mis = self.mis
         ctx = mi.BSDFContext(mi.TransportMode.Importance)
-        emitter, ray, beta, dvc, pdf_e, area, y0, n0, cos0, active = \
+        emitter, ray, beta, dvc, pdf_e, area, inf, y0, n0, cos0, p_dir, active = \
             self.start(scene, sel, tables, sampler, mi.Bool(active))
         dvcm = mi.Float(0.0)
         eta = mi.Float(1.0)
@@ -336,7 +397,12 @@ class LightWalk:
             it.p, it.n = si.p, si.n
             p_nee = emitter.pdf_direction(it, ds, active & first & area)
             dvcm_first = dr.select(area, mis(safe_div(p_nee * cos0, pdf_e)),
-                                   mis(safe_div(dist2, pdf_e)))
+                                   dr.select(inf, mis(safe_div(p_dir, pdf_e)),
+                                             mis(safe_div(dist2, pdf_e))))
+            if dr.hint(nee_sel is not None, mode="scalar"):
+                # next-event estimation picks the light by its own pmf at y1
+                dvcm_first *= mis(safe_div(nee_sel.pmf_at(si, emitter, active & first),
+                                           sel.pmf(emitter, active & first)))
             dvcm = dr.select(first, dvcm_first, dvcm * mis(dist2))
             inv_cos = mis(safe_div(1.0, cos_in))
             dvcm *= inv_cos
