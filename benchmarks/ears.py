@@ -151,9 +151,11 @@ def chart(path, name, res_rows):
     from integrators.app.imageio import write_with
     fig, ax = plt.subplots(figsize=(4.8, 3.6))
     for i, (m, rows) in enumerate(res_rows["methods"].items()):
-        b = sorted(rows)
+        b = sorted(rows, key=int)
         ax.loglog([rows[s]["seconds"] for s in b], [rows[s]["relmse"] for s in b], marker="o",
                   ms=3, color="black" if m == BASELINE else f"C{i}", label=m)
+    from matplotlib.ticker import NullFormatter
+    ax.xaxis.set_minor_formatter(NullFormatter())
     ax.set_xlabel("time per render, learning included (s)")
     ax.set_ylabel("relMSE (reference's own removed)")
     ax.set_title(name, fontsize=9)
