@@ -225,7 +225,8 @@ print("MEANS", float(a.mean()), float(b.mean()))
 """
 
 
-@pytest.mark.parametrize("variant", ["llvm_ad_spectral", "scalar_rgb"])
+@pytest.mark.parametrize("variant", [pytest.param("llvm_ad_spectral", marks=pytest.mark.slow),
+                                     "scalar_rgb"])
 def test_other_variants(variant):
     """Spectral: renders, and its image mean is path's within 3 % (8x8, 256 spp: a smoke test,
     not a bias test); scalar: refused in one line naming the parameter and the variant."""
