@@ -195,6 +195,12 @@ def power_pmf(power: np.ndarray) -> np.ndarray:
     return power / total
 
 
+def _no_direction_sample():
+    """An empty direction sample (``dr.zeros`` cannot build one in scalar variants: its
+    emitter pointer)."""
+    return dr.zeros(mi.DirectionSample3f) if is_jit() else mi.DirectionSample3f()
+
+
 class LightSelection:
     """Per-scene light selection: sampling an emitter and the pmf of a given emitter."""
 
@@ -275,11 +281,11 @@ class LightSelection:
         (no visibility test), and ``norm`` from :meth:`choose`, to pass to
         :meth:`pdf_direction` from the same ``si``."""
         if self.count == 0:
-            return dr.zeros(mi.DirectionSample3f), mi.Spectrum(0.0), None
+            return _no_direction_sample(), mi.Spectrum(0.0), None
         emitter, sel, norm = self.choose(si, sample1, active)
         active = active & (sel > 0)
         if not is_jit() and not active:
-            return dr.zeros(mi.DirectionSample3f), mi.Spectrum(0.0), norm
+            return _no_direction_sample(), mi.Spectrum(0.0), norm
         ds, weight = emitter.sample_direction(si, sample2, active)
         ds.emitter = emitter
         ds.pdf = ds.pdf * sel
