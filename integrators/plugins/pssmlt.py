@@ -343,14 +343,20 @@ def step(evaluate, st: "ChainState", ids, image, scale, large_step: float, sigma
     dr.scatter(st.lum, lum, ids, accept)
     dr.scatter(st.rgb, rgb, ids, accept)
     dr.scatter(st.pix, pix, ids, accept)
-    flat = dr.arange(mi.UInt32, m * st.dims)
-    row = flat // st.dims
-    chain = dr.gather(mi.UInt32, ids, row)
-    index = chain * st.dims + (flat - row * st.dims)
-    prop = ps.propose(dr.gather(mi.Float, st.u, index), index, k,
-                      dr.gather(mi.Bool, large, row), sigma)
-    dr.scatter(st.u, prop, index, dr.gather(mi.Bool, accept, row))
-    dr.eval(st.u, st.lum, st.rgb, st.pix, image, a)
+    dr.eval(st.lum, st.rgb, st.pix, image, a, accept)
+    # the accepted chains take their proposal: only their rows are rewritten (a rejected
+    # chain's vector is unchanged), so this kernel's width is the accepted count x dims
+    sel = dr.compress(accept)
+    n_acc = dr.width(sel)
+    if n_acc:
+        flat = dr.arange(mi.UInt32, n_acc * st.dims)
+        row = dr.gather(mi.UInt32, sel, flat // st.dims)
+        chain = dr.gather(mi.UInt32, ids, row)
+        index = chain * st.dims + (flat - (flat // st.dims) * st.dims)
+        prop = ps.propose(dr.gather(mi.Float, st.u, index), index, k,
+                          dr.gather(mi.Bool, large, row), sigma)
+        dr.scatter(st.u, prop, index)
+        dr.eval(st.u)
     acc_sum = dr.sum(a)
     n_large = dr.count(large)
     large_sum = dr.sum(dr.select(large, lum, 0.0))
