@@ -56,4 +56,40 @@ MUTANTS = [
     ("bdpt-camera-pdf-per-pixel", _BDPT,
      "dvcm = dr.select(first, mis(safe_div(1.0, p_film)), dvcm)",
      "dvcm = dr.select(first, mis(safe_div(1.0, 256.0 * p_film)), dvcm)", _T),
+    # ---- environment lights, several lights, light selection, hide_emitters ----
+    # the light subpath's dvc without the selection probability (the bug with several lights)
+    ("bdpt-light-start-dvc-without-selection", _SUB,
+     "self.mis(safe_div(cos0, pick * pdf_e))", "self.mis(safe_div(cos0, pdf_e))", _T),
+    # an environment's first light vertex with a distance factor (as a finite light)
+    ("bdpt-env-first-hit-with-distance", _SUB,
+     "dr.select(inf, mis(safe_div(p_dir, pdf_e)),",
+     "dr.select(inf, mis(safe_div(p_dir * dist2, pdf_e)),", _T),
+    # an environment's emission density without the disk's area density
+    ("bdpt-env-emission-without-disk", _SUB,
+     "pdf_e = dr.select(area, pdf_area, dr.select(inf, p_dir * pos_pdf, dir_pdf))",
+     "pdf_e = dr.select(area, pdf_area, dr.select(inf, p_dir, dir_pdf))", _T),
+    # the camera's escape weighted without the light subpaths that reach the environment
+    ("bdpt-env-escape-without-emission-term", _BDPT,
+     "+ mis(pick_env_e * p_env * disk_pdf) * dvc)", ")", _T),
+    # next-event estimation to the environment: the emission ratio without the disk pdf
+    ("bdpt-env-nee-ratio-without-disk", _BDPT,
+     "dr.select(inf_l, pos_pdf_l * cos_z,", "dr.select(inf_l, cos_z,", _T),
+    # adaptive/bvh: the light subpath's pmf ratio left out of next-event estimation's weight
+    ("bdpt-nee-selection-ratio", _BDPT,
+     "ratio *= safe_div(sel_e.pmf(ds_l.emitter, vis), pick_l)", "ratio *= 1.0", _T),
+    # adaptive/bvh: next-event estimation's pmf at y1 left out of the light subpath's dvcm
+    ("bdpt-light-walk-nee-pmf", _SUB,
+     "dvcm_first *= mis(safe_div(nee_sel.pmf_at(si, emitter, active & first),",
+     "dvcm_first *= mis(safe_div(sel.pmf(emitter, active & first),", _T),
+    # hide_emitters: light tracing blocked by the (camera-transparent) area lights
+    ("bdpt-hide-light-tracing-blocked-by-emitters", _BDPT,
+     "active &= ~_occluded_by_non_emitters(scene, si.spawn_ray_to(ds.p), active)",
+     "active &= ~scene.ray_test(si.spawn_ray_to(ds.p), active)", _T),
+    # hide_emitters: light vertices on an emitter's surface splatted (the camera cannot see it)
+    ("bdpt-hide-light-tracing-onto-emitters", _BDPT,
+     "                active &= ~_on_emitter(si)\n", "", _T),
+    # hide_emitters ignored for the environment seen directly
+    ("bdpt-hide-env-visible", _BDPT,
+     "w_env = dr.select(first, 0.0 if hide else 1.0, w_env)",
+     "w_env = dr.select(first, 1.0, w_env)", _T),
 ]

@@ -6,7 +6,7 @@ Every camera sample traces a **light subpath** y_0 y_1 ... (a light chosen by
 and combines every strategy (s, t) (s light vertices, t camera vertices) that builds a path of at
 most ``max_depth`` segments (s + t - 1):
 
-* s = 0: the camera subpath hits an area light;
+* s = 0: the camera subpath hits an area light or escapes to the environment;
 * s = 1: next-event estimation at camera vertex z_{t-1} (a fresh light sample, as pbrt-v4);
 * t = 1: light tracing: each smooth light vertex y_i (i >= 1) is connected to the pinhole and its
   contribution splatted onto the film at the pixel it projects to (an image block with atomic
@@ -33,14 +33,30 @@ nothing, as Mitsuba).  Storage is about (27 + channels) x 4 bytes per vertex; re
 samples than fit in ``MEMORY_BUDGET`` are done in chunks of whole samples per pixel (each with its
 own seed) inside one ``render`` call.
 
+**Environment lights** (``constant``, ``envmap``; as pbrt-v4's BDPT and SmallVCM): a light
+subpath from the environment samples a direction with the emitter's own density p_dir, then a
+point on the disk perpendicular to it that covers the scene's bounding sphere (area density
+p_disk = 1/(pi r^2)), both by Mitsuba's ``sample_ray``; its emission density p_dir p_disk takes
+the place of an area light's position and direction densities, with no 1/d^2 and no cosine at
+the light end (y0 is a direction).  A camera subpath that escapes the scene is the strategy
+s = 0 on the environment; next-event estimation samples it as any light.
+
 **Scope**: area lights (uniform position on the shape; textured emitters refused), point and
-spot lights; environment and directional emitters are refused in one line (no bidirectional
-strategy for infinite emitters yet; render them with ``nee_path``), and so are other emitters
-(``projector``).  Sensors: ``perspective`` (pinhole: every strategy) and ``radiancemeter`` (its
-delta direction cannot be connected to: no light tracing, its weight is zero).  JIT variants
-only (``llvm_*``/``cuda_*``, RGB or mono); scalar and spectral variants are refused in one
-line.  No media, no ``hide_emitters``.  ``light_selection`` is ``uniform`` or ``power``: the
-light subpath's start and next-event estimation need the same pmf, without a shading point.
+spot lights, ``constant`` and ``envmap`` environments; ``directional`` (a delta direction) and
+other emitters (``projector``) are refused in one line.  Sensors: ``perspective`` (pinhole:
+every strategy) and ``radiancemeter`` (its delta direction cannot be connected to: no light
+tracing, its weight is zero).  JIT variants only (``llvm_*``/``cuda_*``, RGB or mono); scalar
+and spectral variants are refused in one line.  No media.
+
+**hide_emitters** (as the other integrators): area emitters are transparent to camera rays and
+the environment seen directly is black; light tracing (t = 1) sees through area emitters too
+and never splats a light vertex that lies on one, so every strategy produces the same paths.
+
+**light_selection**: ``uniform`` and ``power`` choose the light of a light subpath and of a light
+sample by the same pmf.  ``adaptive`` and ``bvh`` depend on the shading point, which the light
+subpath's start has not: they choose the light of next-event estimation (s = 1) only, and the
+light subpath starts by the ``power`` pmf; the weights take each strategy's own pmf (the ratio
+of the two enters next-event estimation's weight and the first light vertex's ``dvcm``).
 
 **Strategy images** (``strategy_images=true``): AOV layers ``s<s>_t<t>`` (R, G, B) hold each
 strategy's weighted contribution (Veach's strategy figure: which strategy carries a scene); they

@@ -322,7 +322,9 @@ class LightWalk:
     """A light subpath: the start on a light, then BSDF sampling in importance mode with
     Russian roulette.  At every smooth vertex y_i (i >= 1) it stores the vertex (when a slot is
     free and i <= ``store_depth``) and calls ``on_vertex(si, bsdf, beta, dvcm, dvc, i, active)``
-    (light tracing to the camera).  Random numbers: 1 + 2 + 2 at the start, then per vertex
+    (light tracing to the camera).  ``nee_sel``: next-event estimation's light selection where
+    it differs from ``sel`` (the light subpath's; a pmf per shading point: adaptive, bvh), whose
+    pmf at y1 enters y1's ``dvcm``.  Random numbers: 1 + 2 + 2 at the start, then per vertex
     whatever ``on_vertex`` draws, 1 + 2 for the BSDF sample, 1 for roulette when it is on."""
 
     def __init__(self, mis: Mis, roulette: Roulette, max_vertices: int, store_depth: int,
