@@ -321,6 +321,7 @@ class BDPT(IntegratorTemplate):
         sel_e = self.emission_selection(scene, sel)
         pinhole = _is_pinhole(sensor)
         hide = self.hide_emitters
+        has_env = scene.environment() is not None
         ctx = mi.BSDFContext()
         L = mi.Spectrum(0.0)
         beta = mi.Spectrum(1.0)
@@ -346,23 +347,24 @@ class BDPT(IntegratorTemplate):
             valid |= first & hit
             cos_in = dr.abs(dr.dot(si.n, ray.d))
 
-            # s = 0 on the environment: the camera subpath escapes (the ratios as after the
-            # last scattering: y0 is a direction, so no d^2 and no cosine at the light end)
-            esc = active & ~si.is_valid()
-            em_env = si.emitter(scene)
-            le_env = emitted(scene, si, esc)
-            esc &= dr.any(le_env != 0)
             it_prev = dr.zeros(mi.Interaction3f)
             it_prev.p, it_prev.n = prev_p, prev_n
-            pick_env = sel.pmf_at(it_prev, em_env, esc & ~first)     # next-event estimation's
-            pick_env_e = sel_e.pmf(em_env, esc)                      # the light subpath's
-            _, disk_pdf, _ = tables.lookup(em_env, esc)
-            p_env = environment_direction_pdf(em_env, ray.d, esc & ~first)
-            w_env = self.weight(1.0 + mis(pick_env * p_env) * dvcm
-                                + mis(pick_env_e * p_env * disk_pdf) * dvc)
-            w_env = dr.select(first, 0.0 if hide else 1.0, w_env)
-            L += dr.select(esc, beta * le_env * w_env, 0.0)
-            self.record(sbuf, lane, strategy_id(0, depth), beta * le_env * w_env, esc)
+            # s = 0 on the environment: the camera subpath escapes (the ratios as after the
+            # last scattering: y0 is a direction, so no d^2 and no cosine at the light end)
+            if dr.hint(has_env, mode="scalar"):
+                esc = active & ~si.is_valid()
+                em_env = si.emitter(scene)
+                le_env = emitted(scene, si, esc)
+                esc &= dr.any(le_env != 0)
+                pick_env = sel.pmf_at(it_prev, em_env, esc & ~first)   # next-event est.'s
+                pick_env_e = sel_e.pmf(em_env, esc)                    # the light subpath's
+                _, disk_pdf, _ = tables.lookup(em_env, esc)
+                p_env = environment_direction_pdf(em_env, ray.d, esc & ~first)
+                w_env = self.weight(1.0 + mis(pick_env * p_env) * dvcm
+                                    + mis(pick_env_e * p_env * disk_pdf) * dvc)
+                w_env = dr.select(first, 0.0 if hide else 1.0, w_env)
+                L += dr.select(esc, beta * le_env * w_env, 0.0)
+                self.record(sbuf, lane, strategy_id(0, depth), beta * le_env * w_env, esc)
             # the first hit: light tracing's density relative to the camera's (0 for a
             # radiancemeter, whose delta direction no light subpath can reach)
             if dr.hint(pinhole, mode="scalar"):

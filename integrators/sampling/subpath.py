@@ -31,7 +31,8 @@ Updates (``Mis`` applied to every factor; cosines use the geometric normal; d th
 length):
 
 * start of a light walk at y0 (area light chosen with probability p_sel, position pdf p_A,
-  cosine direction pdf p_w): ``dvc = cos0 / (p_sel p_A p_w)``; at the first hit y1: ``dvcm = p_nee_w(y1 -> y0) cos0 / (p_A p_w)``
+  cosine direction pdf p_w): ``dvc = cos0 / (p_sel p_A p_w)``; at the first hit y1:
+  ``dvcm = p_nee_w(y1 -> y0) cos0 / (p_A p_w)``
   (next-event estimation's density of y0; the selection probability cancels, or, when
   next-event estimation picks lights by another pmf (``nee_sel``: adaptive, bvh), the ratio
   of its pmf at y1 to the light subpath's enters ``dvcm``); a delta light
