@@ -19,8 +19,8 @@ MUTANTS = [
      "w_c = dr.select(pos_c, a * scale", _T),
     # the accept step stores another vector than the proposal that was evaluated
     ("pssmlt-stored-vector-not-the-proposal", _P,
-     "prop = ps.propose(dr.gather(mi.Float, st.u, index), index, k,",
-     "prop = ps.propose(dr.gather(mi.Float, st.u, index), index + 1, k,", _T),
+     "prop = ps.propose(u[d], index, k, large, sigma)",
+     "prop = ps.propose(u[d], index + 1, k, large, sigma)", _T),
     # b's count takes every mutation, not only the large steps whose I it sums
     ("pssmlt-b-counts-every-mutation", _P,
      "st.lum_count += int(_scalar(n_large))",
@@ -43,6 +43,13 @@ MUTANTS = [
     ("pssmlt-large-step-density-doubled", _P,
      "pb = dr.opaque(mi.Float, large_step * st.b)",
      "pb = dr.opaque(mi.Float, 2.0 * large_step * st.b)", _T),
+    # the fused loop over steps: an accepted chain keeps its old pixel in the loop state
+    ("pssmlt-loop-keeps-old-pixel", _P,
+     "dr.select(accept, pix, pix_c), acc + a",
+     "dr.select(accept, pix_c, pix_c), acc + a", _T),
+    # the fused loop over steps: every step of a kernel reuses the same random numbers
+    ("pssmlt-loop-same-key-every-step", _P,
+     "k = ps.hash32(key0 + t)", "k = ps.hash32(key0 + t * 0)", _T),
     # the splat scale miscounts the mutations of a pass
     ("pssmlt-scale-miscount", _P,
      "dr.opaque(mi.Float, w * h / total)",

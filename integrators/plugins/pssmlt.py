@@ -17,6 +17,15 @@ image's mean luminance), Metropolis sampling draws u with density I(u)/b, and pi
   large step (a fresh uniform vector) with probability ``large_step``, otherwise Kelemen's small
   step (every coordinate moved by at most ``sigma``, mod 1; a symmetric proposal), and accepts
   with a = min(1, I(u')/I(u)).
+* **Many steps per kernel**: up to ``STEPS_PER_KERNEL`` steps of every chain run in one
+  Dr.Jit kernel, a symbolic loop over the steps whose state is each chain's primary vector (a
+  ``dr.Local`` array per lane, read by the path with a dynamic index), its contribution,
+  importance and pixel; the splats are atomic adds inside the loop.  One trace and one launch
+  per 64 steps instead of per step, and no flat-array rewrite per step: a mutation costs
+  about 1.3 path evaluations of ``nee_path`` (the proposal of each coordinate is a hash).
+  Fewer chains thus take more steps each in the same time, which is what lowers the error
+  (a chain's error is dominated by its start and by bright paths it sits on: few long chains
+  beat many short ones), hence the default of 2048 chains.
 * **Expected-value splatting** (Veach) **with Kelemen's weights**: the current state is
   splatted with weight 1 - a and the proposal with weight a, each at its own pixel, by atomic
   adds into the film (a box filter of one pixel: each splat goes to the pixel its film position
@@ -113,8 +122,9 @@ class PSSMLT(IntegratorTemplate):
               doc="Probability of a large step (a fresh uniform primary sample)."),
         Param("sigma", "float", 1.0 / 64.0, min=0.0, max=0.5, min_exclusive=True,
               doc="Small-step size: Kelemen's s2 (largest offset per coordinate; s1 = s2/16)."),
-        Param("chains", "int", 16384, min=1, max=MAX_CHAINS,
-              doc="Markov chains run in parallel (one Dr.Jit lane each)."),
+        Param("chains", "int", 2048, min=1, max=MAX_CHAINS,
+              doc="Markov chains run in parallel (one Dr.Jit lane each); fewer chains take "
+                  "more steps each in the same time (up to 64 steps per kernel)."),
         Param("bootstrap", "int", 131072, min=1, max=MAX_BOOTSTRAP,
               doc="Independent paths that estimate the normalisation b and seed the chains."),
         Param("estimator", "choice", "path", choices=("path", "bdpt"),
@@ -313,53 +323,74 @@ def start(evaluate, dims: int, chains: int, bootstrap: int, seed: int, resample:
     return st
 
 
-def step(evaluate, st: "ChainState", ids, image, scale, large_step: float, sigma: float):
-    """One Metropolis step of the chains ``ids`` (UInt32): propose (large step with
-    probability ``large_step``, else Kelemen's small step of size ``sigma``), splat the current
-    and the proposed state with weights 1 - a and a (times ``scale`` / I) into the flat RGB
-    ``image`` at their pixels, accept with probability a = min(1, I'/I).  Large-step proposals
-    are independent uniform samples: their I refine the estimate of b."""
-    k = dr.opaque(mi.UInt32, _key(st.key, st.steps + 1))
-    st.steps += 1
-    m = dr.width(ids)
-    large = ps.large_steps(ids, k, large_step)
-    pix, rgb, lum = evaluate(ps.primary_sampler(st.u, st.dims, ids, k, large, sigma, st.extra))
-    dr.eval(pix, rgb, lum, large)            # the paths: one kernel
-    lum_c = dr.gather(mi.Float, st.lum, ids)
-    rgb_c = dr.gather(mi.Color3f, st.rgb, ids)
-    pix_c = dr.gather(mi.UInt32, st.pix, ids)
-    pos_c = lum_c > 0
-    a = dr.select(pos_c, dr.minimum(1.0, lum / dr.select(pos_c, lum_c, 1.0)), 1.0)
-    # Kelemen's weights: the Metropolis samples (density I/b per mutation) and the large-step
-    # proposals (independent uniform samples, density p_large per mutation) combined by the
-    # balance heuristic: f / (I/b + p_large) each, i.e. f b / (I + p_large b) before the
-    # final factor b
+#: Metropolis steps per kernel at most (one symbolic loop over steps; the trace is reused)
+STEPS_PER_KERNEL = 64
+
+
+def steps(evaluate, st: "ChainState", ids, count: int, image, scale, large_step: float,
+          sigma: float):
+    """``count`` Metropolis steps of the chains ``ids`` (UInt32, distinct) in ONE kernel: a
+    Dr.Jit symbolic loop over the steps whose state is each chain's primary vector (a
+    ``dr.Local`` of ``dims`` Floats per lane), contribution, importance and pixel.  Each step
+    proposes (large step with probability ``large_step``, else Kelemen's small step of size
+    ``sigma``), splats the current and the proposed state with weights 1 - a and a (times
+    ``scale`` / I, Kelemen's weights) into the flat RGB ``image`` at their pixels (atomic adds
+    inside the loop) and accepts with probability a = min(1, I'/I).  Large-step proposals are
+    independent uniform samples: their I refine the estimate of b after the kernel (b in the
+    weights is the estimate before it).  The step's random key is a hash of the run's key and
+    the step's number, so the streams are those of ``count`` separate steps."""
+    n = dr.width(ids)
+    m = n * count                                   # mutations
+    dims = st.dims
+    base = st.steps
+    st.steps += count
+    key0 = dr.opaque(mi.UInt32, _key(st.key, base + 1))
+    u = dr.alloc_local(mi.Float, dims)
+    for d in range(dims):
+        u[d] = dr.gather(mi.Float, st.u, ids * dims + d)
     pb = dr.opaque(mi.Float, large_step * st.b)
-    w_c = dr.select(pos_c, (1.0 - a) * scale / (lum_c + pb), 0.0)
-    w_p = dr.select(lum > 0, (a + dr.select(large, 1.0, 0.0)) * scale / (lum + pb), 0.0)
-    splat(image, pix_c, rgb_c * w_c, w_c > 0)
-    splat(image, pix, rgb * w_p, w_p > 0)
-    accept = ps.uniform(ids, ps.stream(k, ps.STREAM_ACCEPT)) < a
-    dr.scatter(st.lum, lum, ids, accept)
-    dr.scatter(st.rgb, rgb, ids, accept)
-    dr.scatter(st.pix, pix, ids, accept)
-    dr.eval(st.lum, st.rgb, st.pix, image, a, accept)
-    # the accepted chains take their proposal: only their rows are rewritten (a rejected
-    # chain's vector is unchanged), so this kernel's width is the accepted count x dims
-    sel = dr.compress(accept)
-    n_acc = dr.width(sel)
-    if n_acc:
-        flat = dr.arange(mi.UInt32, n_acc * st.dims)
-        row = dr.gather(mi.UInt32, sel, flat // st.dims)
-        chain = dr.gather(mi.UInt32, ids, row)
-        index = chain * st.dims + (flat - (flat // st.dims) * st.dims)
-        prop = ps.propose(dr.gather(mi.Float, st.u, index), index, k,
-                          dr.gather(mi.Bool, large, row), sigma)
-        dr.scatter(st.u, prop, index)
-        dr.eval(st.u)
-    acc_sum = dr.sum(a)
-    n_large = dr.count(large)
-    large_sum = dr.sum(dr.select(large, lum, 0.0))
+    n_steps = dr.opaque(mi.UInt32, count)           # opaque: one compiled kernel for any count
+    state = (mi.UInt32(0), u, dr.gather(mi.Float, st.lum, ids),
+             dr.gather(mi.Color3f, st.rgb, ids), dr.gather(mi.UInt32, st.pix, ids),
+             mi.Float(0.0), mi.UInt32(0), mi.Float(0.0))
+
+    def cond(t, u, lum_c, rgb_c, pix_c, acc, nl, ls):
+        return t < n_steps
+
+    def body(t, u, lum_c, rgb_c, pix_c, acc, nl, ls):
+        k = ps.hash32(key0 + t)                     # the step's key
+        large = ps.large_steps(ids, k, large_step)
+        pix, rgb, lum = evaluate(ps.primary_sampler(u, dims, ids, k, large, sigma, st.extra))
+        pos_c = lum_c > 0
+        a = dr.select(pos_c, dr.minimum(1.0, lum / dr.select(pos_c, lum_c, 1.0)), 1.0)
+        # Kelemen's weights: the Metropolis samples (density I/b per mutation) and the
+        # large-step proposals (independent uniform samples, density p_large per mutation)
+        # combined by the balance heuristic: f / (I/b + p_large) each, i.e. f b / (I +
+        # p_large b) before the final factor b
+        w_c = dr.select(pos_c, (1.0 - a) * scale / (lum_c + pb), 0.0)
+        w_p = dr.select(lum > 0, (a + dr.select(large, 1.0, 0.0)) * scale / (lum + pb), 0.0)
+        splat(image, pix_c, rgb_c * w_c, w_c > 0)
+        splat(image, pix, rgb * w_p, w_p > 0)
+        accept = ps.uniform(ids, ps.stream(k, ps.STREAM_ACCEPT)) < a
+        for d in range(dims):                       # the accepted chains take the proposal
+            index = ids * dims + d
+            prop = ps.propose(u[d], index, k, large, sigma)
+            u[d] = dr.select(accept, prop, u[d])
+        return (t + 1, u, dr.select(accept, lum, lum_c), dr.select(accept, rgb, rgb_c),
+                dr.select(accept, pix, pix_c), acc + a, nl + dr.select(large, 1, 0),
+                ls + dr.select(large, lum, 0.0))
+
+    t, u, lum_c, rgb_c, pix_c, acc, nl, ls = dr.while_loop(state, cond, body,
+                                                            label="pssmlt_steps")
+    rows = [u[d] for d in range(dims)]
+    dr.eval(rows, lum_c, rgb_c, pix_c, image, acc, nl, ls)   # the kernel (once: then reduce)
+    acc_sum, n_large, large_sum = dr.sum(acc), dr.sum(nl), dr.sum(ls)
+    for d in range(dims):
+        dr.scatter(st.u, rows[d], ids * dims + d)
+    dr.scatter(st.lum, lum_c, ids)
+    dr.scatter(st.rgb, rgb_c, ids)
+    dr.scatter(st.pix, pix_c, ids)
+    dr.eval(st.u, st.lum, st.rgb, st.pix)
     st.accepted += _scalar(acc_sum)
     st.large += int(_scalar(n_large))
     st.lum_sum += _scalar(large_sum)
@@ -367,18 +398,28 @@ def step(evaluate, st: "ChainState", ids, image, scale, large_step: float, sigma
     st.mutations += m
 
 
+def step(evaluate, st: "ChainState", ids, image, scale, large_step: float, sigma: float):
+    """One Metropolis step of the chains ``ids`` (:func:`steps` with one step)."""
+    steps(evaluate, st, ids, 1, image, scale, large_step, sigma)
+
+
 def run(evaluate, st: "ChainState", mutations: int, image, scale, large_step: float,
         sigma: float):
-    """``mutations`` steps of single chains: whole steps over every chain, then one over a
-    rotating subset, so that every chain takes its share."""
+    """``mutations`` steps of single chains: whole steps over every chain (up to
+    ``STEPS_PER_KERNEL`` of them per kernel), then one over a rotating subset, so that every
+    chain takes its share."""
     done = 0
     while done < mutations:
-        m = min(st.chains, mutations - done)
-        if m == st.chains:
-            ids = dr.arange(mi.UInt32, m)
-        else:
-            ids = (dr.arange(mi.UInt32, m) + st.offset) % st.chains
-            st.offset = (st.offset + m) % st.chains
+        whole = (mutations - done) // st.chains
+        if whole:
+            count = min(whole, STEPS_PER_KERNEL)
+            steps(evaluate, st, dr.arange(mi.UInt32, st.chains), count, image, scale,
+                  large_step, sigma)
+            done += count * st.chains
+            continue
+        m = mutations - done
+        ids = (dr.arange(mi.UInt32, m) + st.offset) % st.chains
+        st.offset = (st.offset + m) % st.chains
         step(evaluate, st, ids, image, scale, large_step, sigma)
         done += m
 

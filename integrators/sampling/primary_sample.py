@@ -113,7 +113,9 @@ class PrimarySampler:
     Made by :func:`primary_sampler`, which binds the read-only data to a class of its own:
     Dr.Jit's loops rebuild a struct from its type and its declared fields (here only the
     per-lane counter ``dim``), so the data must live on the type.  Lane i reads row
-    ``rows[i]`` of ``u`` (flat Float, chains x ``dims``, row-major): with ``large`` (Bool per
+    ``rows[i]`` of ``u`` (flat Float, chains x ``dims``, row-major; or a ``dr.Local`` of
+    ``dims`` Floats per lane holding the lane's own row, inside a loop over steps that
+    rewrites it): with ``large`` (Bool per
     lane) given, the *proposal* of that row (:func:`propose`, drawn lazily), else the row
     itself (the current state); with ``u`` None,
     the generated vector ``uniform(rows[i] * dims + d, key)`` (bootstrap vectors, regenerated
@@ -142,11 +144,11 @@ class PrimarySampler:
         index = self.rows * self.dims + dr.minimum(d, self.dims - 1)
         if self.u is None:
             v = uniform(index, self.key)
-        elif self.large is None:
-            v = dr.gather(mi.Float, self.u, index)
         else:
-            v = propose(dr.gather(mi.Float, self.u, index), index, self.key, self.large,
-                        self.sigma)
+            v = self.u[dr.minimum(d, self.dims - 1)] if isinstance(self.u, dr.Local) \
+                else dr.gather(mi.Float, self.u, index)
+            if self.large is not None:
+                v = propose(v, index, self.key, self.large, self.sigma)
         return dr.select(stored, v, self._extra(d)) if self.extra else v
 
     def _extra(self, d):
