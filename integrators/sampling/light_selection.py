@@ -78,6 +78,21 @@ def _mean(fn, n: int) -> float:
     return float(np.mean(vals)) if vals.size else 0.0
 
 
+def _area_power_sample(emitter, shape, u):
+    """One sample of an area light's power pi * int L_e dA (Lambertian emission) from a uniform
+    point on its shape (``u``: at least 3 uniforms); works for textured radiance too, which
+    cannot always ``sample_ray``.  ``emitter`` and ``shape`` may be pointer arrays."""
+    ps = shape.sample_position(0.0, mi.Point2f(u[0], u[1]))
+    si = dr.zeros(mi.SurfaceInteraction3f)
+    si.p, si.n, si.uv, si.time = ps.p, ps.n, ps.uv, ps.time
+    si.sh_frame = mi.Frame3f(ps.n)
+    si.wi = mi.Vector3f(0.0, 0.0, 1.0)
+    if mi.is_spectral:
+        si.wavelengths, _ = mi.sample_rgb_spectrum(mi.sample_shifted(u[2]))
+    le = emitter.eval(si, True)
+    return channel_mean(le) * dr.select(ps.pdf > 0, dr.rcp(ps.pdf), 0.0) * dr.pi
+
+
 def emitter_power(emitter, n: int | None = None) -> float:
     """Emitted power of one emitter, averaged over spectral channels."""
     n = n or (POWER_SAMPLES_JIT if is_jit() else POWER_SAMPLES_SCALAR)
@@ -85,18 +100,7 @@ def emitter_power(emitter, n: int | None = None) -> float:
     if shape is not None:
         # area light: Phi = pi * int L_e dA (Lambertian emission), by uniform points on the
         # shape; works for textured radiance too, which cannot always sample_ray
-        def area_sample(u):
-            ps = shape.sample_position(0.0, mi.Point2f(u[0], u[1]))
-            si = dr.zeros(mi.SurfaceInteraction3f)
-            si.p, si.n, si.uv, si.time = ps.p, ps.n, ps.uv, ps.time
-            si.sh_frame = mi.Frame3f(ps.n)
-            si.wi = mi.Vector3f(0.0, 0.0, 1.0)
-            if mi.is_spectral:
-                si.wavelengths, _ = mi.sample_rgb_spectrum(mi.sample_shifted(u[2]))
-            le = emitter.eval(si, True)
-            inv = dr.select(ps.pdf > 0, dr.rcp(ps.pdf), 0.0)
-            return channel_mean(le) * inv * dr.pi
-        return _mean(area_sample, n)
+        return _mean(lambda u: _area_power_sample(emitter, shape, u), n)
 
     # other emitters: the weight of an emitted ray is Phi / pdf
     def ray_sample(u):
@@ -148,16 +152,7 @@ def emitter_powers(scene, emitters=None, normals: bool = False):
         uu = [mi.Float(np.tile(u[:, c], len(idx))) for c in range(5)]
         em = dr.gather(mi.EmitterPtr, ptrs, mi.UInt32(np.repeat(idx, k).astype(np.uint32)))
         if area:
-            shape = em.get_shape()
-            ps = shape.sample_position(0.0, mi.Point2f(uu[0], uu[1]))
-            si = dr.zeros(mi.SurfaceInteraction3f)
-            si.p, si.n, si.uv, si.time = ps.p, ps.n, ps.uv, ps.time
-            si.sh_frame = mi.Frame3f(ps.n)
-            si.wi = mi.Vector3f(0.0, 0.0, 1.0)
-            if mi.is_spectral:
-                si.wavelengths, _ = mi.sample_rgb_spectrum(mi.sample_shifted(uu[2]))
-            le = em.eval(si, True)
-            val = channel_mean(le) * dr.select(ps.pdf > 0, dr.rcp(ps.pdf), 0.0) * dr.pi
+            val = _area_power_sample(em, em.get_shape(), uu)
         else:
             _, w = em.sample_ray(0.0, uu[0], mi.Point2f(uu[1], uu[2]), mi.Point2f(uu[3], uu[4]),
                                  True)
