@@ -351,14 +351,8 @@ def merge_results(results, record):
                         sorted(results, key=lambda r: r["seed_first"])) if a is not None]
     if not accs:
         return None
-    for i in range(1, len(accs)):
-        problem = accs[i - 1].record.merge_problem(accs[i].record, f"task {i - 1}", f"task {i}")
-        if problem:
-            raise RuntimeError(problem)
-    out = accs[0]
-    for a in accs[1:]:
-        out = out.merge(a)
-    return out
+    from .progressive import merge_accumulators
+    return merge_accumulators(accs, [f"task {i}" for i in range(len(accs))])
 
 
 # =============================================================================================

@@ -377,8 +377,16 @@ def merge(paths) -> Accumulator:
             raise ValueError(f"{paths[i]}: image size {accs[i].s.shape[1]}x{accs[i].s.shape[0]}"
                              f" differs from {paths[0]} ({accs[0].s.shape[1]}x"
                              f"{accs[0].s.shape[0]})")
+    return merge_accumulators(accs, paths)
+
+
+def merge_accumulators(accs, names) -> Accumulator:
+    """``accs`` merged by sample count (:meth:`Accumulator.merge`), after checking every pair's
+    records (:meth:`RunRecord.merge_problem`, ValueError naming the two by ``names``): the one
+    merge of ``merge`` and of distributed renders."""
+    for i in range(1, len(accs)):
         for j in range(i):
-            problem = accs[j].record.merge_problem(accs[i].record, paths[j], paths[i])
+            problem = accs[j].record.merge_problem(accs[i].record, names[j], names[i])
             if problem:
                 raise ValueError(problem)
     out = accs[0]
