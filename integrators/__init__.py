@@ -52,12 +52,16 @@ def set_variant(name: str) -> None:
     """Activate Mitsuba variant ``name`` (our plugins are registered by the variant callback)."""
     check_variant(name)
     mi.set_variant(name)
+    _interrupt.prime_mitsuba()    # command line: Mitsuba's Ctrl-C start-up race closed
 
 
 if mi.variant() is None:
     set_variant(_os.environ.get("INTEGRATORS_VARIANT", DEFAULT_VARIANT))
 
 from . import plugins  # noqa: E402,F401  (declares every plugin with the registry)
+
+_interrupt.prime_mitsuba()   # (idempotent: the variant may have been set before the import)
+_interrupt.release()   # command line: SIGINT was held through the imports and priming
 
 registry.install()
 

@@ -6,4 +6,10 @@ MUTANTS = [
     ("base-render-without-python-sigint", "integrators/plugins/base.py",
      "        with _python_sigint():\n            return self._base.render(",
      "        if True:\n            return self._base.render(", ["test_corpus.py"]),
+    # no throw-away render-binding call before the first render: Mitsuba's saved "previous"
+    # SIGINT handler is still SIG_DFL during the first install, and a SIGINT then kills the
+    # command with no line
+    ("no-mitsuba-sigint-priming", "integrators/app/interrupt.py",
+     "    if variant is None or variant in _primed:\n        return\n",
+     "    if True:\n        return\n", ["test_corpus.py"]),
 ]

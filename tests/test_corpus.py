@@ -571,10 +571,10 @@ def _env(**extra):
     return env
 
 
-def _spawn(args, tmp_path, pause_at=None, pause_s=1.0, **kw):
+def _spawn(args, tmp_path, pause_at=None, pause_s=1.0, env_extra=None, **kw):
     mark = tmp_path / "paused"
     env = _env(INTEGRATORS_TEST_PAUSE_AT=pause_at or "", INTEGRATORS_TEST_PAUSE_FILE=mark,
-               INTEGRATORS_TEST_PAUSE_SECONDS=pause_s)
+               INTEGRATORS_TEST_PAUSE_SECONDS=pause_s, **(env_extra or {}))
     p = subprocess.Popen([sys.executable, "-m", "integrators", *map(str, args)], env=env,
                          cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                          text=True, **kw)
@@ -629,6 +629,68 @@ def test_signal(case, tiny, tmp_path):
         assert f"stopped by {signal.Signals(sig).name}" in stdout
     else:
         assert "nothing written" in err[0]
+    assert no_temporaries(tmp_path)
+
+
+# Mitsuba's render binding installs its SIGINT handler and only then stores the handler it
+# replaced (a static that starts as SIG_DFL): a SIGINT in that gap, in the first render of a
+# process, used to kill the command outright (status -2, nothing on stderr; CI caught it once in
+# sigint-during-compile).  This shim widens the gap: glibc's signal() (which only Mitsuba calls;
+# Python uses sigaction) sleeps after its first SIGINT install, and marks a file meanwhile, so the
+# signal can be sent right inside it.  Negative control: without interrupt.prime_mitsuba the
+# process dies of the signal (the mutant "no-mitsuba-sigint-priming").
+_SHIM = r"""
+#define _GNU_SOURCE
+#include <dlfcn.h>
+#include <signal.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <unistd.h>
+typedef void (*handler_t)(int);
+static int calls;
+handler_t signal(int sig, handler_t h) {
+    static handler_t (*real)(int, handler_t);
+    if (!real) real = (handler_t (*)(int, handler_t)) dlsym(RTLD_NEXT, "signal");
+    handler_t old = real(sig, h);
+    const char *mark = getenv("SHIM_MARK");
+    if (sig == SIGINT && mark && calls++ == 0) {
+        FILE *f = fopen(mark, "w");
+        if (f) fclose(f);
+        usleep(1500000);
+    }
+    return old;
+}
+"""
+
+
+@pytest.fixture(scope="module")
+def signal_gap_shim(tmp_path_factory):
+    import shutil
+    cc = shutil.which("cc") or shutil.which("gcc")
+    if cc is None:
+        pytest.skip("no C compiler to build the signal() shim")
+    d = tmp_path_factory.mktemp("shim")
+    (d / "shim.c").write_text(_SHIM)
+    subprocess.run([cc, "-shared", "-fPIC", "-o", str(d / "shim.so"), str(d / "shim.c"),
+                    "-ldl"], check=True, capture_output=True)
+    return d / "shim.so"
+
+
+def test_sigint_in_mitsubas_first_handler_install_is_one_line(signal_gap_shim, tiny, tmp_path):
+    out = tmp_path / "o.exr"
+    gap = tmp_path / "in-the-gap"
+    p, _ = _spawn(["render", tiny, "-o", out, "--time", 30], tmp_path,
+                  env_extra={"LD_PRELOAD": signal_gap_shim, "SHIM_MARK": gap})
+    t0 = time.monotonic()
+    while not gap.exists():
+        assert p.poll() is None, p.communicate()
+        assert time.monotonic() - t0 < 60, "Mitsuba's render binding was never called"
+        time.sleep(0.005)
+    p.send_signal(signal.SIGINT)
+    _, stderr = p.communicate(timeout=120)
+    err = lines(stderr)
+    assert p.returncode == 130, (p.returncode, stderr)
+    assert len(err) == 1 and "SIGINT" in err[0] and "Traceback" not in stderr, stderr
     assert no_temporaries(tmp_path)
 
 

@@ -19,6 +19,16 @@ What a signal does depends on how far the run is (:class:`Interrupts`):
 (:func:`early`, called first thing by ``integrators/__init__``); a library user who imports
 ``integrators`` keeps Python's own handlers.
 
+Mitsuba's render binding has a start-up race that the command line closes
+(:func:`prime_mitsuba`): each call installs a C-level SIGINT handler that cancels the render
+and re-raises the signal to the handler it replaced, which it keeps in a static variable that
+starts out as ``SIG_DFL`` and is assigned only after the new handler is in place. A SIGINT in
+that gap during the process's first render killed it outright (status -2, nothing on stderr).
+The command line therefore holds SIGINT blocked from :func:`early` (so the threads Dr.Jit and
+Mitsuba start while importing never take it) through one throw-away call of the binding per
+variant, made with SIGINT blocked, which leaves Python's handler in that variable; a SIGINT
+sent meanwhile waits and is acted on as soon as the hold ends (:func:`release`).
+
 Test-only hooks (environment variables read by :func:`test_pause`; nothing else reads them):
 ``INTEGRATORS_TEST_PAUSE_AT`` is a comma-separated list of points (``start``, ``load``,
 ``compile``, ``pass``, ``write``, ``png``, ``rename``); at each, the process appends the point's
@@ -185,7 +195,42 @@ def early() -> None:
         return
     install()
     _EARLY = True
+    if threading.current_thread() is threading.main_thread():
+        signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})   # until release()
     test_pause("start")
+
+
+_primed: set = set()
+
+
+def prime_mitsuba() -> None:
+    """Command line only: one call of Mitsuba's render binding in the current variant that
+    fails at once (an empty scene has no sensor 0) after its SIGINT handler has been installed
+    and removed again, made with SIGINT blocked in this thread, so that the binding's saved
+    "previous handler" is Python's before the first real render (see the module docstring)."""
+    if not _EARLY or threading.current_thread() is not threading.main_thread():
+        return
+    import mitsuba as mi
+    variant = mi.variant()
+    if variant is None or variant in _primed:
+        return
+    old = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    try:
+        scene = mi.load_dict({"type": "scene"})
+        integrator = mi.load_dict({"type": "path"})
+        with contextlib.suppress(Exception):
+            integrator.render(scene, 0)       # "sensor index 0 is out of bounds"
+        _primed.add(variant)
+    except Exception:      # priming is a precaution: never a reason for the command to fail
+        pass
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, old)
+
+
+def release() -> None:
+    """End the hold that :func:`early` put on SIGINT (a signal sent meanwhile is acted on now)."""
+    if _EARLY and threading.current_thread() is threading.main_thread():
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
 
 
 def test_pause(point: str) -> None:
