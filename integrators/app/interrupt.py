@@ -195,12 +195,14 @@ def early() -> None:
         return
     install()
     _EARLY = True
-    if threading.current_thread() is threading.main_thread():
+    if _CAN_MASK and threading.current_thread() is threading.main_thread():
         signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})   # until release()
     test_pause("start")
 
 
 _primed: set = set()
+#: POSIX signal masks (Mitsuba installs its handler only on Linux and macOS, which have them)
+_CAN_MASK = hasattr(signal, "pthread_sigmask")
 
 
 def prime_mitsuba() -> None:
@@ -208,7 +210,7 @@ def prime_mitsuba() -> None:
     fails at once (an empty scene has no sensor 0) after its SIGINT handler has been installed
     and removed again, made with SIGINT blocked in this thread, so that the binding's saved
     "previous handler" is Python's before the first real render (see the module docstring)."""
-    if not _EARLY or threading.current_thread() is not threading.main_thread():
+    if not (_EARLY and _CAN_MASK) or threading.current_thread() is not threading.main_thread():
         return
     import mitsuba as mi
     variant = mi.variant()
@@ -229,7 +231,7 @@ def prime_mitsuba() -> None:
 
 def release() -> None:
     """End the hold that :func:`early` put on SIGINT (a signal sent meanwhile is acted on now)."""
-    if _EARLY and threading.current_thread() is threading.main_thread():
+    if _EARLY and _CAN_MASK and threading.current_thread() is threading.main_thread():
         signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
 
 
