@@ -280,47 +280,66 @@ class BDPT(IntegratorTemplate):
         dr.eval(block.tensor())
 
     def light_tracer(self, scene, sensor, sampler, block_lt, scale):
-        """The t = 1 strategy at a light vertex: connect to the pinhole, weight, splat."""
-        mis, max_depth, lambert = self.mis, self.max_depth, self._lambert
-        hide = self.hide_emitters
+        """The t = 1 strategy at a light vertex (:meth:`t1_connection`), splatted onto the
+        film."""
         alpha = mi.has_flag(sensor.film().flags(), mi.FilmFlags.Alpha)
         offset = mi.Vector2f(block_lt.offset())
         n_strat = len(self.strategies)
 
-        def splat(si, bsdf, beta, dvcm, dvc, depth, active):
-            ctx = mi.BSDFContext(mi.TransportMode.Importance)
-            u = sampler.next_2d(active)
-            active = active & (depth + 1 <= max_depth)
-            ds, w_s = sensor.sample_direction(si, u, active)
-            active &= ds.pdf > 0
-            wo = si.to_local(ds.d)
-            f = bsdf.eval(ctx, si, wo, active) * shading_correction(si, ds.d)
-            p_rev = reverse_pdf(bsdf, ctx, si, wo, active & (dvc > 0), lambert)
-            p_cam = mi.unpolarized_spectrum(w_s)[0] * dr.abs(dr.dot(si.n, ds.d))
-            w = self.weight(1.0 + mis(p_cam) * (dvcm + dvc * mis(p_rev)))
-            value = beta * f * w_s * (w * scale)
-            active &= dr.any(value != 0)
-            if dr.hint(hide, mode="scalar"):   # the camera sees no emitter, and through them
-                active &= ~_on_emitter(si)
-                active &= ~_occluded_by_non_emitters(scene, si.spawn_ray_to(ds.p), active)
-            else:
-                active &= ~scene.ray_test(si.spawn_ray_to(ds.p), active)
-            rgb = _to_rgb(value)
+        def splat(si, bsdf, beta, dvcm, dvc, depth, active, sampler):
+            uv, rgb, active = self.t1_connection(scene, sensor, si, bsdf, beta, dvcm, dvc,
+                                                 depth, active, sampler, scale)
             vals = [rgb[0], rgb[1], rgb[2]] + ([mi.Float(0.0)] if alpha else []) + \
                 [mi.Float(0.0)]
             if n_strat:                       # s = depth + 1, t = 1
                 sid = strategy_id(depth + 1, depth + 1)
                 vals += [dr.select(sid == j, rgb[c], 0.0) for j in range(n_strat)
                          for c in range(3)]
-            block_lt.put(ds.uv + offset, vals, active)
+            block_lt.put(uv + offset, vals, active)
         return splat
 
+    def t1_connection(self, scene, sensor, si, bsdf, beta, dvcm, dvc, depth, active, sampler,
+                      scale=1.0):
+        """Light vertex y_{depth} connected to the pinhole: (film position in pixels relative
+        to the crop window, weighted RGB contribution times ``scale``, active).  Draws two
+        numbers (the sensor's direction sample)."""
+        mis, max_depth, lambert = self.mis, self.max_depth, self._lambert
+        ctx = mi.BSDFContext(mi.TransportMode.Importance)
+        u = sampler.next_2d(active)
+        active = active & (depth + 1 <= max_depth)
+        ds, w_s = sensor.sample_direction(si, u, active)
+        active &= ds.pdf > 0
+        wo = si.to_local(ds.d)
+        f = bsdf.eval(ctx, si, wo, active) * shading_correction(si, ds.d)
+        p_rev = reverse_pdf(bsdf, ctx, si, wo, active & (dvc > 0), lambert)
+        p_cam = mi.unpolarized_spectrum(w_s)[0] * dr.abs(dr.dot(si.n, ds.d))
+        w = self.weight(1.0 + mis(p_cam) * (dvcm + dvc * mis(p_rev)))
+        value = beta * f * w_s * (w * scale)
+        active &= dr.any(value != 0)
+        if dr.hint(self.hide_emitters, mode="scalar"):
+            # the camera sees no emitter, and through them
+            active &= ~_on_emitter(si)
+            active &= ~_occluded_by_non_emitters(scene, si.spawn_ray_to(ds.p), active)
+        else:
+            active &= ~scene.ray_test(si.spawn_ray_to(ds.p), active)
+        return ds.uv, _to_rgb(value), active
+
     @dr.syntax
-    def camera_walk(self, scene, sel, tables, sensor, sampler, store, lane, ray, sbuf=None):
+    def camera_walk(self, scene, sel, tables, sensor, sampler, store, lane, ray, sbuf=None,
+                    leave_out=None):
+        """The camera subpath and the strategies that end on it: (L, valid).  ``leave_out``
+        (pssmlt renders these apart, :meth:`PSSMLT.seen_emission`): ``"direct"``, the
+        emission the camera sees directly; ``"delta"``, also the emission it sees through
+        delta scatterings only (s = 0 after an all-delta prefix: the one strategy that can
+        make such paths, with weight 1)."""
+        seen = leave_out is None
+        delta = leave_out == "delta"
         mis, max_depth, lambert = self.mis, self.max_depth, self._lambert
         sel_e = self.emission_selection(scene, sel)
         pinhole = _is_pinhole(sensor)
         hide = self.hide_emitters
+        w_seen = 0.0 if (hide or not seen) else 1.0   # emission seen directly
+        prefix = mi.Bool(True)     # (leave_out delta) the camera subpath so far: deltas only
         has_env = scene.environment() is not None
         ctx = mi.BSDFContext()
         L = mi.Spectrum(0.0)
@@ -362,7 +381,9 @@ class BDPT(IntegratorTemplate):
                 p_env = environment_direction_pdf(em_env, ray.d, esc & ~first)
                 w_env = self.weight(1.0 + mis(pick_env * p_env) * dvcm
                                     + mis(pick_env_e * p_env * disk_pdf) * dvc)
-                w_env = dr.select(first, 0.0 if hide else 1.0, w_env)
+                w_env = dr.select(first, w_seen, w_env)
+                if dr.hint(delta, mode="scalar"):
+                    w_env = dr.select(prefix, 0.0, w_env)
                 L += dr.select(esc, beta * le_env * w_env, 0.0)
                 self.record(sbuf, lane, strategy_id(0, depth), beta * le_env * w_env, esc)
             # the first hit: light tracing's density relative to the camera's (0 for a
@@ -389,8 +410,10 @@ class BDPT(IntegratorTemplate):
             p_nee = em.pdf_direction(it_prev, ds_e, hit_light & ~first)
             direct_a = pick * p_nee * cos_in * safe_div(1.0, dist2)
             emission_w = pick_e * pos_pdf * cos_in * dr.inv_pi
-            w0 = dr.select(first, 0.0 if hide else 1.0,
+            w0 = dr.select(first, w_seen,
                            self.weight(1.0 + mis(direct_a) * dvcm + mis(emission_w) * dvc))
+            if dr.hint(delta, mode="scalar"):
+                w0 = dr.select(prefix, 0.0, w0)
             L += dr.select(hit_light, beta * le * w0, 0.0)
             self.record(sbuf, lane, strategy_id(0, depth), beta * le * w0, hit_light)
 
@@ -441,6 +464,8 @@ class BDPT(IntegratorTemplate):
             beta *= w
             eta *= bs.eta
             active = hit & ((bs.pdf > 0) | spec)
+            if dr.hint(delta, mode="scalar"):
+                prefix &= spec
             beta, active = self.rr(beta, eta, depth, sampler.next_1d(active), active)
             prev_p, prev_n = mi.Point3f(si.p), mi.Normal3f(si.n)
             ray = si.spawn_ray(wo)
@@ -525,7 +550,8 @@ def strategy_id(s, k):
 
 
 def _is_pinhole(sensor) -> bool:
-    return str(sensor).startswith("PerspectiveCamera")
+    name = getattr(sensor, "class_name", None)     # (no read of the sensor's values)
+    return (name() if callable(name) else str(sensor).split("[", 1)[0]) == "PerspectiveCamera"
 
 
 def _uniform_on_shape(emitter, shape) -> bool:

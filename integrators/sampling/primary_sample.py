@@ -130,6 +130,10 @@ class PrimarySampler:
     large = None
     sigma = 0.0
     extra = True
+    #: this stream's coordinates within a row: ``count`` of them from ``offset`` (count 0: the
+    #: whole row); past them, fresh numbers
+    offset = 0
+    count = 0
 
     def __init__(self):
         self.dim = dr.zeros(mi.UInt32, dr.width(self.rows)) if self.rows is not None \
@@ -138,21 +142,34 @@ class PrimarySampler:
     def next_1d(self, active=True):
         d = self.dim
         self.dim = d + 1
-        if self.dims == 0:
+        n = self.count or self.dims - self.offset
+        if n <= 0:
             return self._extra(d)
-        stored = d < self.dims
-        index = self.rows * self.dims + dr.minimum(d, self.dims - 1)
+        stored = d < n
+        col = self.offset + dr.minimum(d, n - 1)
+        index = self.rows * self.dims + col
         if self.u is None:
             v = uniform(index, self.key)
         else:
-            v = self.u[dr.minimum(d, self.dims - 1)] if isinstance(self.u, dr.Local) \
+            v = self.u[col] if isinstance(self.u, dr.Local) \
                 else dr.gather(mi.Float, self.u, index)
             if self.large is not None:
                 v = propose(v, index, self.key, self.large, self.sigma)
         return dr.select(stored, v, self._extra(d)) if self.extra else v
 
     def _extra(self, d):
-        return uniform(self.rows, hash32(stream(self.key, STREAM_EXTRA)) + d)
+        k = hash32(stream(self.key, STREAM_EXTRA))
+        if self.offset:                  # each stream its own fresh numbers
+            k = hash32(k + self.offset)
+        return uniform(self.rows, k + d)
+
+    def substream(self, offset: int, count: int) -> "PrimarySampler":
+        """A sampler over the same rows that reads coordinates ``offset`` ..
+        ``offset + count - 1`` of each row (fresh numbers past them), from its first: a path
+        estimator with two subpaths gives each its own coordinates, so that a longer light
+        subpath does not shift the camera subpath's numbers."""
+        cls = type("PrimarySampler", (type(self),), {"offset": int(offset), "count": int(count)})
+        return cls()
 
     def next_2d(self, active=True):
         x = self.next_1d(active)

@@ -322,7 +322,8 @@ def delta_direction_pdf(emitter) -> float:
 class LightWalk:
     """A light subpath: the start on a light, then BSDF sampling in importance mode with
     Russian roulette.  At every smooth vertex y_i (i >= 1) it stores the vertex (when a slot is
-    free and i <= ``store_depth``) and calls ``on_vertex(si, bsdf, beta, dvcm, dvc, i, active)``
+    free and i <= ``store_depth``) and calls ``on_vertex(si, bsdf, beta, dvcm, dvc, i, active,
+    sampler)``
     (light tracing to the camera).  ``nee_sel``: next-event estimation's light selection where
     it differs from ``sel`` (the light subpath's; a pmf per shading point: adaptive, bvh), whose
     pmf at y1 enters y1's ``dvcm``.  Random numbers: 1 + 2 + 2 at the start, then per vertex
@@ -417,7 +418,7 @@ class LightWalk:
             store.put(lane * store.cap + count, si, bsdf, beta, dvcm, dvc, depth, do_store)
             count = dr.select(do_store, count + 1, count)
             if dr.hint(on_vertex is not None, mode="scalar"):
-                on_vertex(si, bsdf, beta, dvcm, dvc, depth, smooth)
+                on_vertex(si, bsdf, beta, dvcm, dvc, depth, smooth, sampler)
 
             # continue: BSDF sample in importance mode
             bs, w = bsdf.sample(ctx, si, sampler.next_1d(active), sampler.next_2d(active), active)
