@@ -41,8 +41,8 @@ MUTANTS = [
      "(a + dr.select(large, 1.0, 0.0))", "(a + dr.select(large, 0.0, 0.0))", _T),
     # Kelemen's weights with a density of large steps that does not match large_step
     ("pssmlt-large-step-density-doubled", _P,
-     "pb = dr.opaque(mi.Float, large_step * st.b)",
-     "pb = dr.opaque(mi.Float, 2.0 * large_step * st.b)", _T),
+     "return dr.opaque(mi.Float, large_step * self.b)",
+     "return dr.opaque(mi.Float, 2.0 * large_step * self.b)", _T),
     # the fused loop over steps: an accepted chain keeps its old pixel in the loop state
     ("pssmlt-loop-keeps-old-pixel", _P,
      "dr.select(accept, pix, pix_c), acc + a",
@@ -54,4 +54,25 @@ MUTANTS = [
     ("pssmlt-scale-miscount", _P,
      "dr.opaque(mi.Float, w * h / total)",
      "dr.opaque(mi.Float, w * h / (total + st.chains))", _T),
+    # estimator bdpt: the light vertices' splats (light tracing, t = 1) left out of the path
+    ("pssmlt-bdpt-light-splats-dropped", _P,
+     "        for k in range(slots):\n            p_k, rgb_k = buf.get(lane * slots + k)",
+     "        for k in range(0):\n            p_k, rgb_k = buf.get(lane * slots + k)", _T),
+    # estimator bdpt: the current state's splats weighted as the proposal's
+    ("pssmlt-bdpt-current-splats-as-proposal", _P,
+     "        splat(image, dr.gather(mi.UInt32, pix_all[j], ids), rgb_c * w_c,",
+     "        splat(image, dr.gather(mi.UInt32, pix_all[j], ids), rgb_c * w_p,", _T),
+    # estimator bdpt: the chains keep the emission seen through delta scatterings, which
+    # seen_emission renders too (counted twice)
+    ("pssmlt-bdpt-delta-chain-twice", _P,
+     "                              leave_out=self.left_out)",
+     "                              leave_out=\"direct\")", _T),
+    # estimator bdpt: the emission seen through delta scatterings rendered by nobody
+    ("pssmlt-bdpt-delta-chain-missing", _P,
+     "        if self.left_out == \"delta\":        # and through delta scatterings (bdpt's s = 0)",
+     "        if False:", _T),
+    # estimator bdpt: the light subpath reads the camera subpath's coordinates
+    ("pssmlt-bdpt-shared-stream", _P,
+     "light = sampler.substream(self.dims_cam, self.dims_light)",
+     "light = sampler.substream(0, self.dims_light)", _T),
 ]

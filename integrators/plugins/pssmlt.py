@@ -12,7 +12,20 @@ image's mean luminance), Metropolis sampling draws u with density I(u)/b, and pi
   between one light sample and the BSDF sample at every vertex, light selection by power,
   throughput roulette from depth 5): the shared :meth:`VertexEstimator.path`, driven by a
   :class:`PrimarySampler` that reads the chain's primary vector instead of a sampler.
-  ``estimator=bdpt`` is refused (not yet available).
+* **``estimator=bdpt``** drives every strategy of :mod:`integrators.plugins.bdpt` instead (same
+  ``max_depth``, which must then be finite, 0-64; ``hide_emitters``; light selection by power):
+  a primary sample is one camera subpath and one light subpath, each reading its own part of
+  the vector (the camera's first: film position, then per vertex a light sample, a BSDF
+  sample and roulette; the light's: its start, then per vertex the connection to the
+  camera, a BSDF sample and roulette; ``primary_sample.PrimarySampler.substream``), so that
+  a longer light subpath does not shift the camera subpath's numbers.  Its contribution is a
+  set of splats: the camera sample's at its pixel and each light vertex's connection to the
+  camera (t = 1) at the pixel it projects to; I is the sum of their luminances, and every
+  splat of the current and of the proposed path takes that path's weight.  bdpt runs kernels
+  of its own (the light subpaths are stored before the camera subpaths connect to them), so
+  its steps are one per kernel launch (:func:`step_splats`), not fused: the default
+  ``chains`` is then ``BDPT_CHAINS`` (65,536), wide enough to pay for the launch.  Scenes
+  bdpt refuses (directional lights, media, non-perspective cameras) are refused.
 * **Many chains**, one per Dr.Jit lane (``chains``).  Each step proposes, for every chain, a
   large step (a fresh uniform vector) with probability ``large_step``, otherwise Kelemen's small
   step (every coordinate moved by at most ``sigma``, mod 1; a symmetric proposal), and accepts
@@ -40,7 +53,12 @@ image's mean luminance), Metropolis sampling draws u with density I(u)/b, and pi
   stationary distribution: no start-up bias in expectation, but a rare bright path found by the
   bootstrap starts several chains, which splat a blob until they move apart.
 * **Emission seen directly** (``separate_emission``, default on) is rendered apart by ``spp``
-  camera rays per pixel: a light in view would otherwise draw most chains to its pixels.
+  camera rays per pixel: a light in view would otherwise draw most chains to its pixels.  With
+  ``estimator=bdpt`` this includes the emission seen through delta scatterings only (a lamp
+  behind glass, a light in a mirror: bdpt's s = 0 after an all-delta prefix, the one strategy
+  that makes those paths, weight 1), by ``DELTA_RAYS`` (4) rays per mutation: such a path
+  found by a chain is bright and hard to leave, a blob (measured on the caustic scene: one
+  of three runs at 4x the error of the others without this, none with it).
 * **Passes**: ``render()`` with ``spp`` does spp x W x H mutations (spp = mutations per pixel,
   the last step over a rotating subset of the chains).  With ``continue_chains`` (default) a
   render whose seed is the previous render's seed + 1 (the passes of ``render`` /
@@ -62,13 +80,15 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ..common import depth_limit, is_jit
+from ..common import depth_limit, emitted, is_jit
 from ..params import MAX_COUNT, Param, ParameterError
 from ..registry import plugin
 from ..sampling import light_selection, mis, roulette
 from ..sampling import primary_sample as ps
+from ..sampling.subpath import LightWalk, VertexStore, is_delta_sample
 from ..sampling.vertex import VertexEstimator
-from .base import HIDE_EMITTERS, MAX_DEPTH, IntegratorTemplate
+from .base import HIDE_EMITTERS, MAX_DEPTH, IntegratorTemplate, SceneError
+from .bdpt import MAX_BDPT_DEPTH
 
 MAX_CHAINS = 1 << 20
 MAX_BOOTSTRAP = 1 << 24
@@ -111,6 +131,10 @@ class ChainState:
     def b(self) -> float:
         return self.lum_sum / max(self.lum_count, 1)
 
+    def large_b(self, large_step: float):
+        """p_large b, the large steps' density in Kelemen's weights (opaque: one kernel)."""
+        return dr.opaque(mi.Float, large_step * self.b)
+
 
 @plugin("pssmlt", "integrator")
 class PSSMLT(IntegratorTemplate):
@@ -128,10 +152,13 @@ class PSSMLT(IntegratorTemplate):
         Param("bootstrap", "int", 131072, min=1, max=MAX_BOOTSTRAP,
               doc="Independent paths that estimate the normalisation b and seed the chains."),
         Param("estimator", "choice", "path", choices=("path", "bdpt"),
-              doc="Path estimator driven by the chains (bdpt: not yet available)."),
+              doc="Path estimator driven by the chains: path (nee_path's) or bdpt (every "
+                  "strategy of bdpt, light tracing included; needs 0 <= max_depth <= 64)."),
         Param("separate_emission", "bool", True,
               doc="Render the emission seen directly by camera rays apart (spp camera rays "
-                  "per pixel), not by the chains, which lights in view would draw to them."),
+                  "per pixel), not by the chains, which lights in view would draw to them "
+                  "(estimator bdpt: also the emission seen through mirrors and glass, by 4 "
+                  "rays per mutation)."),
         Param("continue_chains", "bool", True,
               doc="A render whose seed follows the previous one continues its chains "
                   "(render passes); false: every render starts from a new bootstrap."),
@@ -139,10 +166,11 @@ class PSSMLT(IntegratorTemplate):
     )
 
     def setup(self):
-        if self.estimator == "bdpt":
+        if self.estimator == "bdpt" and not 0 <= self.max_depth <= MAX_BDPT_DEPTH:
             raise ParameterError(
-                "pssmlt: parameter 'estimator' = 'bdpt' is not yet available (no bdpt "
-                "estimator in this version); allowed now: path")
+                f"pssmlt: parameter 'max_depth' = {self.max_depth} cannot be used with "
+                f"estimator 'bdpt' (it stores light vertices per depth); allowed: 0 to "
+                f"{MAX_BDPT_DEPTH}")
         if not is_jit():
             raise ParameterError(
                 f"pssmlt: variant {mi.variant()} is not supported (the chains are Dr.Jit "
@@ -153,6 +181,16 @@ class PSSMLT(IntegratorTemplate):
         self.dims = ps.dims_for(self.max_depth)
         # a finite max_depth within the stored vertices never draws past the stored coordinates
         self.extra = not (0 <= self.max_depth <= ps.MAX_STORED_VERTICES + 1)
+        self.bd = None
+        #: what the chains leave to seen_emission: the emission seen directly, and with the
+        #: bdpt estimator also the emission seen through delta scatterings only
+        self.left_out = None if not self.separate_emission else \
+            ("delta" if self.estimator == "bdpt" else "direct")
+        if self.estimator == "bdpt":
+            self.dims_cam, self.dims_light = bdpt_dims(self.max_depth)
+            self.dims, self.extra = self.dims_cam + self.dims_light, True
+            if "chains" not in self.given:   # one kernel per step: wide steps pay
+                self.chains = BDPT_CHAINS
         self.state = None
 
     # ---- the estimator: one path per lane from a primary sampler --------------------------
@@ -181,6 +219,70 @@ class PSSMLT(IntegratorTemplate):
         py = dr.minimum(mi.UInt32(dr.floor(pos.y * h)), h - 1)
         return py * w + px, rgb, importance(rgb)
 
+    def bdpt_estimator(self, scene, sensor):
+        """The ``bdpt`` integrator whose strategies the chains drive (same max_depth,
+        hide_emitters; light selection by power), checked against the scene once."""
+        if self.bd is None:
+            self.bd = mi.load_dict({"type": "bdpt", "max_depth": self.max_depth,
+                                    "hide_emitters": self.hide_emitters})
+        if getattr(self, "_bd_checked", None) != (scene, sensor):
+            self.bd.check_support(scene, sensor)
+            if str(sensor).split("[", 1)[0] != "PerspectiveCamera":
+                raise SceneError("pssmlt: estimator 'bdpt' needs a 'perspective' camera "
+                                 "(its light tracing splats onto the film)")
+            self._bd_checked = (scene, sensor)
+        return self.bd
+
+    def contribution_bdpt(self, scene, sensor, sel, sampler, active=True):
+        """bdpt's estimate of one primary sample as splats: ([pixel of the camera sample,
+        pixel of each light vertex's t = 1 connection], [their RGB values], I = the sum of
+        their luminances).  The camera subpath reads the row's first ``dims_cam``
+        coordinates (film position, then its vertices), the light subpath the rest.  The
+        light vertices' splats are kept per lane and depth (``max_depth - 1`` slots)."""
+        bd = self.bdpt_estimator(scene, sensor)
+        film = sensor.film()
+        w, h = (int(x) for x in film.crop_size())
+        lanes = dr.width(sampler.rows)
+        lane = dr.arange(mi.UInt32, lanes)
+        cam = sampler.substream(0, self.dims_cam)
+        light = sampler.substream(self.dims_cam, self.dims_light)
+        md = self.max_depth
+        tables, lambert = bd.tables(scene)
+        bd._lambert = lambert
+        cap = max(md - 2, 0)
+        slots = max(md - 1, 0)
+        store = VertexStore(lanes, cap)
+        buf = _Splats(lanes, slots)
+        if md >= 2:
+            def record(si, bsdf, beta, dvcm, dvc, depth, active, smp):
+                uv, rgb, ok = bd.t1_connection(scene, sensor, si, bsdf, beta, dvcm, dvc,
+                                               depth, active, smp)
+                buf.put(lane * slots + depth - 1, uv, rgb, ok, w, h)
+
+            walk = LightWalk(bd.mis, bd.rr, md - 1, md - 2, lambert)
+            sel_e = bd.emission_selection(scene, sel)
+            walk.walk(scene, sel_e, tables, light, store, lane, mi.Bool(True), record,
+                      nee_sel=None if sel_e is sel else sel)
+        store.evaluate()
+        buf.evaluate()
+        pos = cam.next_2d()
+        ray, ray_w = sensor.sample_ray(0.0, 0.5, pos, mi.Point2f(0.5))
+        L, _ = bd.camera_walk(scene, sel, tables, sensor, cam, store, lane, mi.Ray3f(ray),
+                              leave_out=self.left_out)
+        rgb = _rgb(ray_w * L, ray.wavelengths, True)
+        rgb = dr.select(dr.all(dr.isfinite(rgb)), rgb, 0.0)
+        px = dr.minimum(mi.UInt32(dr.floor(pos.x * w)), w - 1)
+        py = dr.minimum(mi.UInt32(dr.floor(pos.y * h)), h - 1)
+        pix, rgbs = [py * w + px], [rgb]
+        for k in range(slots):
+            p_k, rgb_k = buf.get(lane * slots + k)
+            pix.append(p_k)
+            rgbs.append(rgb_k)
+        lum = importance(rgbs[0])
+        for rgb_k in rgbs[1:]:
+            lum += importance(rgb_k)
+        return pix, rgbs, lum
+
     def seen_emission(self, sensor, scene, spp: int, seed: int, w: int, h: int):
         """The emission seen directly by camera rays, by ``spp`` camera rays per pixel (box
         filter): a flat RGB image, the part of the image the chains leave out with
@@ -195,12 +297,44 @@ class PSSMLT(IntegratorTemplate):
         pos = mi.Point2f((mi.Float(px) + r[0]) / w, (mi.Float(py) + r[1]) / h)
         time = sensor.shutter_open() + r[5] * sensor.shutter_open_time()
         ray, ray_w = sensor.sample_ray(time, r[2], pos, mi.Point2f(r[3], r[4]))
-        _, L = self.camera_hit(scene, mi.Ray3f(ray), mi.Bool(True))
+        ray = mi.Ray3f(ray)
+        si, L = self.camera_hit(scene, ray, mi.Bool(True))
+        if self.left_out == "delta":        # and through delta scatterings (bdpt's s = 0)
+            L += self.delta_chain_emission(scene, ray, si, lane, _key(seed, 0x27D4EB2F))
         rgb = _rgb(ray_w * L, ray.wavelengths, True)
         rgb = dr.select(dr.all(dr.isfinite(rgb)), rgb, 0.0) / spp
         image = dr.zeros(mi.Float, w * h * 3)
         splat(image, pixel, rgb, dr.any(rgb != 0))
         return image
+
+    @dr.syntax
+    def delta_chain_emission(self, scene, ray, si, lane, key):
+        """The emission a camera ray reaches through delta scatterings only (mirrors,
+        glass, null interfaces: BSDF samples of a delta lobe), after its first hit ``si``,
+        up to ``max_depth`` segments: the paths whose only strategy in bdpt is s = 0 with
+        weight 1, which the chains of the bdpt estimator leave out (the camera walk's
+        ``seen`` False).  Random numbers: 3 per bounce from ``lane`` and ``key``."""
+        ctx = mi.BSDFContext()
+        L = mi.Spectrum(0.0)
+        beta = mi.Spectrum(1.0)
+        ray = mi.Ray3f(ray)
+        depth = mi.UInt32(1)
+        k = dr.opaque(mi.UInt32, key)
+        active = si.is_valid() & (depth < self.max_depth)
+        while dr.hint(active, label="pssmlt delta chain"):
+            bsdf = si.bsdf(ray)
+            index = (lane * self.max_depth + depth) * 3
+            bs, w = bsdf.sample(ctx, si, ps.uniform(index, k),
+                                mi.Point2f(ps.uniform(index + 1, k), ps.uniform(index + 2, k)),
+                                active)
+            active &= is_delta_sample(bs) & dr.any(w != 0)
+            beta *= w
+            ray = si.spawn_ray(si.to_world(bs.wo))
+            si = scene.ray_intersect(ray, active)
+            L += dr.select(active, beta * emitted(scene, si, active), 0.0)
+            depth += 1
+            active &= si.is_valid() & (depth < self.max_depth)
+        return L
 
     def sample(self, scene, sampler, ray, medium=None, active=True):
         """The estimator the chains drive, with an ordinary sampler (one independent path)."""
@@ -225,8 +359,13 @@ class PSSMLT(IntegratorTemplate):
         w, h = (int(x) for x in film.crop_size())
         st = self.state
 
+        estimate = self.contribution_bdpt if self.estimator == "bdpt" else self.contribution
+
         def contribution(sampler):
-            return self.contribution(scene, sensor, sel, sampler)
+            return estimate(scene, sensor, sel, sampler)
+
+        if self.estimator == "bdpt":
+            self.bdpt_estimator(scene, sensor)      # the scene check, before any work
 
         if not (self.continue_chains and st is not None and st.scene is scene and
                 st.sensor is sensor and st.size == (w, h) and seed == st.seed_last + 1):
@@ -243,7 +382,8 @@ class PSSMLT(IntegratorTemplate):
             self.large_step, self.sigma)
         image = image * st.b
         if self.separate_emission:
-            image += self.seen_emission(sensor, scene, int(spp), seed, w, h)
+            rays = int(spp) * (DELTA_RAYS if self.left_out == "delta" else 1)
+            image += self.seen_emission(sensor, scene, rays, seed, w, h)
         return self.develop_image(film, image, w, h)
 
     @staticmethod
@@ -315,12 +455,30 @@ def start(evaluate, dims: int, chains: int, bootstrap: int, seed: int, resample:
     flat = dr.arange(mi.UInt32, chains * dims)
     row = flat // dims
     u = ps.uniform(dr.gather(mi.UInt32, pick, row) * dims + (flat - row * dims), k)
-    st = ChainState(key, dims, u, dr.gather(mi.Color3f, rgb_b, pick),
-                    dr.gather(mi.Float, lum_b, pick), dr.gather(mi.UInt32, pix_b, pick),
-                    lum_sum, bootstrap)
+    if isinstance(pix_b, list):          # several splats per path (estimator bdpt)
+        rgb0 = [dr.gather(mi.Color3f, r, pick) for r in rgb_b]
+        pix0 = [dr.gather(mi.UInt32, p, pick) for p in pix_b]
+    else:
+        rgb0, pix0 = dr.gather(mi.Color3f, rgb_b, pick), dr.gather(mi.UInt32, pix_b, pick)
+    st = ChainState(key, dims, u, rgb0, dr.gather(mi.Float, lum_b, pick), pix0, lum_sum,
+                    bootstrap)
     st.extra = extra
     dr.eval(st.u, st.rgb, st.lum, st.pix)
     return st
+
+
+def kelemen_weights(lum, lum_c, large, scale, pb):
+    """The acceptance probability a = min(1, I'/I) of a proposal of importance ``lum`` from
+    a state of importance ``lum_c``, and the splat weights of the current state and of the
+    proposal: Kelemen's, which combine the Metropolis samples (density I/b per mutation) and
+    the large-step proposals (independent uniform samples, density p_large per mutation) by
+    the balance heuristic, f / (I/b + p_large) each, i.e. f b / (I + p_large b) before the
+    final factor b (``pb`` = p_large b, ``scale`` = W H / N)."""
+    pos_c = lum_c > 0
+    a = dr.select(pos_c, dr.minimum(1.0, lum / dr.select(pos_c, lum_c, 1.0)), 1.0)
+    w_c = dr.select(pos_c, (1.0 - a) * scale / (lum_c + pb), 0.0)
+    w_p = dr.select(lum > 0, (a + dr.select(large, 1.0, 0.0)) * scale / (lum + pb), 0.0)
+    return a, w_c, w_p
 
 
 #: Metropolis steps per kernel at most (one symbolic loop over steps; the trace is reused)
@@ -348,7 +506,7 @@ def steps(evaluate, st: "ChainState", ids, count: int, image, scale, large_step:
     u = dr.alloc_local(mi.Float, dims)
     for d in range(dims):
         u[d] = dr.gather(mi.Float, st.u, ids * dims + d)
-    pb = dr.opaque(mi.Float, large_step * st.b)
+    pb = st.large_b(large_step)
     n_steps = dr.opaque(mi.UInt32, count)           # opaque: one compiled kernel for any count
     state = (mi.UInt32(0), u, dr.gather(mi.Float, st.lum, ids),
              dr.gather(mi.Color3f, st.rgb, ids), dr.gather(mi.UInt32, st.pix, ids),
@@ -361,14 +519,7 @@ def steps(evaluate, st: "ChainState", ids, count: int, image, scale, large_step:
         k = ps.hash32(key0 + t)                     # the step's key
         large = ps.large_steps(ids, k, large_step)
         pix, rgb, lum = evaluate(ps.primary_sampler(u, dims, ids, k, large, sigma, st.extra))
-        pos_c = lum_c > 0
-        a = dr.select(pos_c, dr.minimum(1.0, lum / dr.select(pos_c, lum_c, 1.0)), 1.0)
-        # Kelemen's weights: the Metropolis samples (density I/b per mutation) and the
-        # large-step proposals (independent uniform samples, density p_large per mutation)
-        # combined by the balance heuristic: f / (I/b + p_large) each, i.e. f b / (I +
-        # p_large b) before the final factor b
-        w_c = dr.select(pos_c, (1.0 - a) * scale / (lum_c + pb), 0.0)
-        w_p = dr.select(lum > 0, (a + dr.select(large, 1.0, 0.0)) * scale / (lum + pb), 0.0)
+        a, w_c, w_p = kelemen_weights(lum, lum_c, large, scale, pb)
         splat(image, pix_c, rgb_c * w_c, w_c > 0)
         splat(image, pix, rgb * w_p, w_p > 0)
         accept = ps.uniform(ids, ps.stream(k, ps.STREAM_ACCEPT)) < a
@@ -399,8 +550,73 @@ def steps(evaluate, st: "ChainState", ids, count: int, image, scale, large_step:
 
 
 def step(evaluate, st: "ChainState", ids, image, scale, large_step: float, sigma: float):
-    """One Metropolis step of the chains ``ids`` (:func:`steps` with one step)."""
-    steps(evaluate, st, ids, 1, image, scale, large_step, sigma)
+    """One Metropolis step of the chains ``ids`` (:func:`steps` with one step; with several
+    splats per path, :func:`step_splats`)."""
+    if isinstance(st.pix, list):
+        step_splats(evaluate, st, ids, image, scale, large_step, sigma)
+    else:
+        steps(evaluate, st, ids, 1, image, scale, large_step, sigma)
+
+
+def step_splats(evaluate, st: "ChainState", ids, image, scale, large_step: float,
+                sigma: float):
+    """One Metropolis step of the chains ``ids`` whose paths have several splats (``st.pix``
+    and ``st.rgb`` are lists: estimator bdpt, whose light tracing splats at other pixels):
+    the same proposal, acceptance, Kelemen weights and random streams as :func:`steps`, with
+    I the sum of the splats' luminances and every splat of the current and the proposed
+    path weighted alike.  The estimator runs kernels of its own (bdpt: the light subpaths,
+    then the camera subpaths), so a step cannot be one iteration of a symbolic loop as in
+    :func:`steps`: each step is traced and launched on its own (hence wide steps: many
+    chains)."""
+    key0 = dr.opaque(mi.UInt32, _key(st.key, st.steps + 1))
+    st.steps += 1
+    pb = st.large_b(large_step)
+    u, lum, pix, rgb, a_sum, n_large, large_sum = _splat_step(
+        evaluate, st.dims, st.extra, large_step, sigma, st.u, st.lum, st.pix, st.rgb,
+        mi.UInt32(ids), key0, pb, scale, image)
+    st.u, st.lum, st.pix, st.rgb = u, lum, pix, rgb
+    st.accepted += _scalar(a_sum)
+    n_large = int(_scalar(n_large))
+    st.large += n_large
+    st.lum_sum += _scalar(large_sum)
+    st.lum_count += n_large
+    st.mutations += dr.width(ids)
+
+
+def _splat_step(evaluate, dims, extra, large_step, sigma, u, lum_all, pix_all, rgb_all, ids,
+                key0, pb, scale, image):
+    """The body of :func:`step_splats` on its arrays: splats into ``image``; returns the
+    chains' new state and the step's sums."""
+    n = dr.width(ids)
+    k = ps.hash32(key0)                             # the step's key, as steps() at t = 0
+    large = ps.large_steps(ids, k, large_step)
+    pix, rgb, lum = evaluate(ps.primary_sampler(u, dims, ids, k, large, sigma, extra))
+    dr.eval(pix, rgb, lum)       # once: every use below would otherwise trace the walks again
+    lum_c = dr.gather(mi.Float, lum_all, ids)
+    a, w_c, w_p = kelemen_weights(lum, lum_c, large, scale, pb)
+    for j in range(len(pix)):
+        rgb_c = dr.gather(mi.Color3f, rgb_all[j], ids)
+        splat(image, dr.gather(mi.UInt32, pix_all[j], ids), rgb_c * w_c,
+              (w_c > 0) & dr.any(rgb_c != 0))
+        splat(image, pix[j], rgb[j] * w_p, (w_p > 0) & dr.any(rgb[j] != 0))
+    accept = ps.uniform(ids, ps.stream(k, ps.STREAM_ACCEPT)) < a
+    flat = dr.arange(mi.UInt32, n * dims)
+    row = flat // dims
+    index = dr.gather(mi.UInt32, ids, row) * dims + (flat - row * dims)
+    prop = ps.propose(dr.gather(mi.Float, u, index), index, k, dr.gather(mi.Bool, large, row),
+                      sigma)
+    take = dr.gather(mi.Bool, accept, row)
+    sums = (dr.sum(a), dr.sum(dr.select(large, 1, 0)), dr.sum(dr.select(large, lum, 0.0)))
+    dr.eval(image, prop, take, accept, lum, pix, rgb, sums)
+    # the accepted chains take the proposal, in place (nothing else refers to the arrays
+    # any more, so the scatters copy nothing)
+    dr.scatter(u, prop, index, take)
+    dr.scatter(lum_all, lum, ids, accept)
+    for j in range(len(pix)):
+        dr.scatter(pix_all[j], pix[j], ids, accept)
+        dr.scatter(rgb_all[j], rgb[j], ids, accept)
+    dr.eval(u, lum_all, pix_all, rgb_all)
+    return (u, lum_all, pix_all, rgb_all, *sums)
 
 
 def run(evaluate, st: "ChainState", mutations: int, image, scale, large_step: float,
@@ -411,6 +627,11 @@ def run(evaluate, st: "ChainState", mutations: int, image, scale, large_step: fl
     done = 0
     while done < mutations:
         whole = (mutations - done) // st.chains
+        if whole and isinstance(st.pix, list):      # several splats: one step per kernel
+            step(evaluate, st, dr.arange(mi.UInt32, st.chains), image, scale, large_step,
+                 sigma)
+            done += st.chains
+            continue
         if whole:
             count = min(whole, STEPS_PER_KERNEL)
             steps(evaluate, st, dr.arange(mi.UInt32, st.chains), count, image, scale,
@@ -434,3 +655,51 @@ def splat(image, pix, rgb, active):
     dr.scatter_add(image, rgb[0], base, active)
     dr.scatter_add(image, rgb[1], base + 1, active)
     dr.scatter_add(image, rgb[2], base + 2, active)
+
+
+#: camera rays per mutation for the emission seen directly or through delta scatterings
+#: (estimator bdpt): a ray and a few delta bounces cost a small fraction of a bdpt mutation,
+#: and the lamp behind glass that they render is a large part of some images
+DELTA_RAYS = 4
+
+#: chains of the bdpt estimator when ``chains`` is not given: its steps are one kernel each
+#: (two with the light subpaths), so a step should be wide
+BDPT_CHAINS = 1 << 16
+
+
+def bdpt_dims(max_depth: int) -> tuple:
+    """Stored coordinates of the bdpt estimator: (camera subpath, light subpath).  Camera:
+    the film position, then per vertex a light sample (3), a BSDF sample (3) and roulette
+    (1); light: the start (5), then per vertex the connection to the camera (2), a BSDF
+    sample (3) and roulette (1); at most MAX_STORED_VERTICES vertices each (fresh numbers
+    past them)."""
+    v_cam = min(max(max_depth, 0), ps.MAX_STORED_VERTICES)
+    v_light = min(max(max_depth - 1, 0), ps.MAX_STORED_VERTICES)
+    return 2 + 7 * v_cam, (5 + 6 * v_light) if max_depth >= 2 else 0
+
+
+class _Splats:
+    """The light-tracing splats of a batch of paths, one slot per lane and light-vertex
+    depth: pixel and RGB (zero where the connection failed).  Scattered to by the light
+    walk's loop (kept out of its loop state), read after it."""
+
+    def __init__(self, lanes: int, slots: int):
+        size = max(lanes * slots, 1)
+        self.pix = dr.zeros(mi.UInt32, size)
+        self.rgb = [dr.zeros(mi.Float, size) for _ in range(3)]
+
+    def put(self, index, uv, rgb, active, w: int, h: int):
+        inside = active & (uv.x >= 0) & (uv.y >= 0) & (uv.x < w) & (uv.y < h)
+        px = dr.minimum(mi.UInt32(dr.maximum(dr.floor(uv.x), 0.0)), w - 1)
+        py = dr.minimum(mi.UInt32(dr.maximum(dr.floor(uv.y), 0.0)), h - 1)
+        dr.scatter(self.pix, py * w + px, index, inside)
+        for c in range(3):
+            dr.scatter(self.rgb[c], dr.select(dr.isfinite(rgb[c]), rgb[c], 0.0), index, inside)
+
+    def evaluate(self):
+        dr.eval(self.pix, self.rgb)
+
+    def get(self, index):
+        rgb = mi.Color3f(*[dr.gather(mi.Float, c, index) for c in self.rgb])
+        return dr.gather(mi.UInt32, self.pix, index), rgb
+
