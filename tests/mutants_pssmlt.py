@@ -73,6 +73,6 @@ MUTANTS = [
      "        if False:", _T),
     # estimator bdpt: the light subpath reads the camera subpath's coordinates
     ("pssmlt-bdpt-shared-stream", _P,
-     "light = sampler.substream(self.dims_cam, self.dims_light)",
-     "light = sampler.substream(0, self.dims_light)", _T),
+     "                sampler.substream(self.dims_cam, self.dims_light))",
+     "                sampler.substream(0, self.dims_light))", _T),
 ]

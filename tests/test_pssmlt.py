@@ -164,6 +164,21 @@ def test_chain_state_is_what_its_vector_evaluates_to_bdpt():
     assert some > st.chains          # light tracing splats too, not the camera sample alone
 
 
+def test_bdpt_subpaths_read_disjoint_coordinates():
+    """The camera and the light subpath of the bdpt estimator read disjoint coordinates of a
+    primary vector, together all of them (correlated subpaths would bias bdpt's weights,
+    which assume independent subpaths; too little for the image tests to see)."""
+    integ = pssmlt(estimator="bdpt")
+    dims = integ.dims
+    u = mi.Float(np.arange(2 * dims, dtype=np.float32) % dims / dims)
+    cam, light = integ.streams(ps.primary_sampler(u, dims, dr.arange(mi.UInt32, 2), 1,
+                                                  extra=True))
+    read_c = [round(float(cam.next_1d()[0]) * dims) for _ in range(integ.dims_cam)]
+    read_l = [round(float(light.next_1d()[0]) * dims) for _ in range(integ.dims_light)]
+    assert not set(read_c) & set(read_l)
+    assert sorted(read_c + read_l) == list(range(dims))
+
+
 def test_bootstrap_b_is_unbiased_bdpt():
     """H0: E[b] of the bdpt estimator (the sum of every splat's luminance over a path) =
     the mean luminance of Mitsuba's path image (Welch t on 24 bootstrap estimates of 65,536

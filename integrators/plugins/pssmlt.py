@@ -233,6 +233,13 @@ class PSSMLT(IntegratorTemplate):
             self._bd_checked = (scene, sensor)
         return self.bd
 
+    def streams(self, sampler):
+        """The bdpt estimator's two samplers over a primary vector: (camera subpath, light
+        subpath), reading disjoint coordinates (the camera's first ``dims_cam``, the light's
+        the next ``dims_light``): the subpaths must be independent for bdpt's weights."""
+        return (sampler.substream(0, self.dims_cam),
+                sampler.substream(self.dims_cam, self.dims_light))
+
     def contribution_bdpt(self, scene, sensor, sel, sampler, active=True):
         """bdpt's estimate of one primary sample as splats: ([pixel of the camera sample,
         pixel of each light vertex's t = 1 connection], [their RGB values], I = the sum of
@@ -244,8 +251,7 @@ class PSSMLT(IntegratorTemplate):
         w, h = (int(x) for x in film.crop_size())
         lanes = dr.width(sampler.rows)
         lane = dr.arange(mi.UInt32, lanes)
-        cam = sampler.substream(0, self.dims_cam)
-        light = sampler.substream(self.dims_cam, self.dims_light)
+        cam, light = self.streams(sampler)
         md = self.max_depth
         tables, lambert = bd.tables(scene)
         bd._lambert = lambert
