@@ -27,8 +27,8 @@ MUTANTS = [
      "st.lum_count += m", _T),
     # film position x and y swapped when choosing the pixel
     ("pssmlt-pixel-transposed", _P,
-     "return py * w + px, rgb, importance(rgb)",
-     "return px * w + py, rgb, importance(rgb)", _T),
+     "    return py * w + px\n",
+     "    return px * w + py\n", _T),
     # emission seen directly counted by the chains and again by seen_emission
     ("pssmlt-emission-twice", _P,
      "if self.separate_emission:   # rendered apart (seen_emission)",
@@ -60,8 +60,8 @@ MUTANTS = [
      "        for k in range(0):\n            p_k, rgb_k = buf.get(lane * slots + k)", _T),
     # estimator bdpt: the current state's splats weighted as the proposal's
     ("pssmlt-bdpt-current-splats-as-proposal", _P,
-     "        splat(image, dr.gather(mi.UInt32, pix_all[j], ids), rgb_c * w_c,",
-     "        splat(image, dr.gather(mi.UInt32, pix_all[j], ids), rgb_c * w_p,", _T),
+     "        splat(image, dr.gather(mi.UInt32, st.pix[j], ids), rgb_c * w_c,",
+     "        splat(image, dr.gather(mi.UInt32, st.pix[j], ids), rgb_c * w_p,", _T),
     # estimator bdpt: the chains keep the emission seen through delta scatterings, which
     # seen_emission renders too (counted twice)
     ("pssmlt-bdpt-delta-chain-twice", _P,

@@ -120,20 +120,23 @@ def test_kelemen_offset_is_symmetric():
     assert np.all(np.abs(off) <= 0.25 + 1e-7) and np.all(np.abs(off) >= 0.25 / 16 - 1e-7)
 
 
+def _stored_and_reevaluated(integ, spp):
+    """Render a 16x16 Cornell box, then evaluate every chain's stored primary vector again:
+    (chain state, (pixel, rgb, I) of the re-evaluation)."""
+    scene = cornell(16)
+    mi.render(scene, integrator=integ, spp=spp, seed=3)
+    st = integ.state
+    assert st.mutations == spp * 16 * 16
+    smp = ps.primary_sampler(st.u, st.dims, dr.arange(mi.UInt32, st.chains), mi.UInt32(1),
+                             None, 0.0, st.extra)
+    return st, integ.estimate(scene, scene.sensors()[0], integ.prepare(scene), smp)
+
+
 def test_chain_state_is_what_its_vector_evaluates_to():
     """Each chain's stored contribution, importance and pixel are those its stored primary
     vector gives when evaluated again (so the accept step stored the very proposal that was
     evaluated, coordinate for coordinate)."""
-    scene = cornell(16)
-    integ = pssmlt()
-    mi.render(scene, integrator=integ, spp=32, seed=3)
-    st = integ.state
-    sensor = scene.sensors()[0]
-    sel = integ.prepare(scene)
-    smp = ps.primary_sampler(st.u, st.dims, dr.arange(mi.UInt32, st.chains), mi.UInt32(1),
-                             None, 0.0, st.extra)
-    pix, rgb, lum = integ.contribution(scene, sensor, sel, smp)
-    assert st.mutations == 32 * 16 * 16
+    st, (pix, rgb, lum) = _stored_and_reevaluated(pssmlt(), 32)
     np.testing.assert_array_equal(np.array(pix), np.array(st.pix))
     np.testing.assert_allclose(np.array(lum), np.array(st.lum), rtol=1e-5, atol=1e-7)
     np.testing.assert_allclose(np.array(rgb), np.array(st.rgb), rtol=1e-5, atol=1e-7)
@@ -142,17 +145,8 @@ def test_chain_state_is_what_its_vector_evaluates_to():
 def test_chain_state_is_what_its_vector_evaluates_to_bdpt():
     """As above for estimator bdpt, whose paths are several splats (the camera sample and
     each light vertex's connection to the camera) read from two streams of the vector."""
-    scene = cornell(16)
-    integ = pssmlt(estimator="bdpt", chains=2048)
-    mi.render(scene, integrator=integ, spp=16, seed=3)
-    st = integ.state
+    st, (pix, rgb, lum) = _stored_and_reevaluated(pssmlt(estimator="bdpt", chains=2048), 16)
     assert isinstance(st.pix, list) and len(st.pix) == 1 + (5 - 1)
-    sensor = scene.sensors()[0]
-    sel = integ.prepare(scene)
-    smp = ps.primary_sampler(st.u, st.dims, dr.arange(mi.UInt32, st.chains), mi.UInt32(1),
-                             None, 0.0, st.extra)
-    pix, rgb, lum = integ.contribution_bdpt(scene, sensor, sel, smp)
-    assert st.mutations == 16 * 16 * 16
     np.testing.assert_allclose(np.array(lum), np.array(st.lum), rtol=1e-4, atol=1e-6)
     some = 0
     for j in range(len(pix)):
@@ -179,46 +173,23 @@ def test_bdpt_subpaths_read_disjoint_coordinates():
     assert sorted(read_c + read_l) == list(range(dims))
 
 
-def test_bootstrap_b_is_unbiased_bdpt():
-    """H0: E[b] of the bdpt estimator (the sum of every splat's luminance over a path) =
-    the mean luminance of Mitsuba's path image (Welch t on 24 bootstrap estimates of 65,536
-    paths each against 10 path renders, alpha DEFAULT_ALPHA); power guard: relative standard
-    error below 1 %."""
+@pytest.mark.parametrize("estimator,batches,seed", [("path", 40, 1000), ("bdpt", 24, 2000)])
+def test_bootstrap_b_is_unbiased(estimator, batches, seed):
+    """H0: E[b] = the mean luminance of Mitsuba's path image (Welch t on ``batches``
+    bootstrap estimates of 65,536 paths each against 10 path renders, alpha DEFAULT_ALPHA);
+    power guard: relative standard error below 1 % (a 5 % bias gives |t| >= 5).  With the
+    bdpt estimator, I is the sum of every splat's luminance over a path."""
     scene = cornell(16)
-    integ = pssmlt(estimator="bdpt", separate_emission=False)
+    integ = pssmlt(estimator=estimator, separate_emission=False)
     sensor = scene.sensors()[0]
     sel = integ.prepare(scene)
 
     def ev(s):
-        return integ.contribution_bdpt(scene, sensor, sel, s)
-    b = np.array([P.start(ev, integ.dims, 256, 65536, seed=2000 + k, extra=integ.extra).b
-                  for k in range(24)])
-    ref = renders(scene, mi.load_dict({"type": "path", "max_depth": 5}), 10, 1024, 70)
+        return integ.estimate(scene, sensor, sel, s)
+    b = np.array([P.start(ev, integ.dims, 256, 65536, seed=seed + k, extra=integ.extra).b
+                  for k in range(batches)])
+    ref = renders(scene, mi.load_dict({"type": "path", "max_depth": 5}), 10, 1024, seed // 20)
     y = (ref @ np.array([0.212671, 0.715160, 0.072169])).mean(axis=(1, 2))
-    count_check(DEFAULT_ALPHA)
-    t, p = stats.ttest_ind(b, y, equal_var=False)
-    se = np.sqrt(b.var(ddof=1) / b.size + y.var(ddof=1) / y.size) / y.mean()
-    assert se < 0.01, f"too noisy to test: relative s.e. {se:.4f}"
-    assert p >= DEFAULT_ALPHA, (f"H0 (E[b] = path's mean luminance) rejected: b {b.mean():.5f} "
-                                f"vs {y.mean():.5f}, t {t:.2f}, p {p:.3g}")
-
-
-def test_bootstrap_b_is_unbiased():
-    """H0: E[b] = the mean luminance of Mitsuba's path image (Welch t on 40 bootstrap
-    estimates of 65,536 paths each against 10 path renders, alpha DEFAULT_ALPHA); power guard:
-    relative standard error below 1 % (a 5 % bias gives |t| >= 5)."""
-    scene = cornell(16)
-    integ = pssmlt(separate_emission=False)
-    sensor = scene.sensors()[0]
-    sel = integ.prepare(scene)
-
-    def ev(s):
-        return integ.contribution(scene, sensor, sel, s)
-    b = np.array([P.start(ev, integ.dims, 256, 65536, seed=1000 + k, extra=integ.extra).b
-                  for k in range(40)])
-    ref = renders(scene, mi.load_dict({"type": "path", "max_depth": 5}), 10, 1024, 50)
-    lum = ref @ np.array([0.212671, 0.715160, 0.072169])
-    y = lum.mean(axis=(1, 2))
     count_check(DEFAULT_ALPHA)
     t, p = stats.ttest_ind(b, y, equal_var=False)
     se = np.sqrt(b.var(ddof=1) / b.size + y.var(ddof=1) / y.size) / y.mean()

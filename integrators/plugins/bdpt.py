@@ -181,9 +181,11 @@ class BDPT(IntegratorTemplate):
             dr.scatter_add(sbuf.a, rgb[c], (lane * n + sid) * 3 + c, active)
 
     def tables(self, scene):
-        """(EmitterTables, LambertTable) of ``scene``, built once per scene."""
+        """(EmitterTables, LambertTable) of ``scene``, built once per scene; the walks and
+        connections read the LambertTable as ``self._lambert``."""
         if self._tables[0] is not scene:
             self._tables = (scene, (EmitterTables(scene), LambertTable(scene)))
+        self._lambert = self._tables[1][1]
         return self._tables[1]
 
     def sample(self, scene, sampler, ray, medium=None, active=True):
@@ -243,7 +245,6 @@ class BDPT(IntegratorTemplate):
         sampler.seed(seed, lanes)
         lane = dr.arange(mi.UInt32, lanes)
         tables, lambert = self.tables(scene)
-        self._lambert = lambert
         store = VertexStore(lanes, cap)
         n_strat = len(self.strategies)
         # per lane and strategy (strategy_images), held in a plain object so that the

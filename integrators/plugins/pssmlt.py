@@ -88,7 +88,7 @@ from ..sampling import primary_sample as ps
 from ..sampling.subpath import LightWalk, VertexStore, is_delta_sample
 from ..sampling.vertex import VertexEstimator
 from .base import HIDE_EMITTERS, MAX_DEPTH, IntegratorTemplate, SceneError
-from .bdpt import MAX_BDPT_DEPTH
+from .bdpt import MAX_BDPT_DEPTH, _is_pinhole
 
 MAX_CHAINS = 1 << 20
 MAX_BOOTSTRAP = 1 << 24
@@ -102,6 +102,13 @@ def _rgb(L, wavelengths, active):
     if mi.is_monochromatic:
         return mi.Color3f(s[0], s[0], s[0])
     return mi.Color3f(s)
+
+
+def film_pixel(pos, w: int, h: int):
+    """Index of the pixel that film position ``pos`` (in [0, 1)^2) falls in."""
+    px = dr.minimum(mi.UInt32(dr.floor(pos.x * w)), w - 1)
+    py = dr.minimum(mi.UInt32(dr.floor(pos.y * h)), h - 1)
+    return py * w + px
 
 
 def importance(rgb):
@@ -215,9 +222,13 @@ class PSSMLT(IntegratorTemplate):
         rgb = _rgb(ray_w * L, ray.wavelengths, active)
         ok = dr.all(dr.isfinite(rgb)) & mi.Bool(active)
         rgb = dr.select(ok, rgb, 0.0)
-        px = dr.minimum(mi.UInt32(dr.floor(pos.x * w)), w - 1)
-        py = dr.minimum(mi.UInt32(dr.floor(pos.y * h)), h - 1)
-        return py * w + px, rgb, importance(rgb)
+        return film_pixel(pos, w, h), rgb, importance(rgb)
+
+    def estimate(self, scene, sensor, sel, sampler):
+        """The chosen estimator's contribution of each lane's primary sample:
+        :meth:`contribution` (path: one splat) or :meth:`contribution_bdpt` (lists)."""
+        f = self.contribution_bdpt if self.estimator == "bdpt" else self.contribution
+        return f(scene, sensor, sel, sampler)
 
     def bdpt_estimator(self, scene, sensor):
         """The ``bdpt`` integrator whose strategies the chains drive (same max_depth,
@@ -227,7 +238,7 @@ class PSSMLT(IntegratorTemplate):
                                     "hide_emitters": self.hide_emitters})
         if getattr(self, "_bd_checked", None) != (scene, sensor):
             self.bd.check_support(scene, sensor)
-            if str(sensor).split("[", 1)[0] != "PerspectiveCamera":
+            if not _is_pinhole(sensor):
                 raise SceneError("pssmlt: estimator 'bdpt' needs a 'perspective' camera "
                                  "(its light tracing splats onto the film)")
             self._bd_checked = (scene, sensor)
@@ -254,7 +265,6 @@ class PSSMLT(IntegratorTemplate):
         cam, light = self.streams(sampler)
         md = self.max_depth
         tables, lambert = bd.tables(scene)
-        bd._lambert = lambert
         cap = max(md - 2, 0)
         slots = max(md - 1, 0)
         store = VertexStore(lanes, cap)
@@ -277,9 +287,7 @@ class PSSMLT(IntegratorTemplate):
                               leave_out=self.left_out)
         rgb = _rgb(ray_w * L, ray.wavelengths, True)
         rgb = dr.select(dr.all(dr.isfinite(rgb)), rgb, 0.0)
-        px = dr.minimum(mi.UInt32(dr.floor(pos.x * w)), w - 1)
-        py = dr.minimum(mi.UInt32(dr.floor(pos.y * h)), h - 1)
-        pix, rgbs = [py * w + px], [rgb]
+        pix, rgbs = [film_pixel(pos, w, h)], [rgb]
         for k in range(slots):
             p_k, rgb_k = buf.get(lane * slots + k)
             pix.append(p_k)
@@ -319,7 +327,8 @@ class PSSMLT(IntegratorTemplate):
         glass, null interfaces: BSDF samples of a delta lobe), after its first hit ``si``,
         up to ``max_depth`` segments: the paths whose only strategy in bdpt is s = 0 with
         weight 1, which the chains of the bdpt estimator leave out (the camera walk's
-        ``seen`` False).  Random numbers: 3 per bounce from ``lane`` and ``key``."""
+        ``leave_out="delta"``).  Random numbers: 3 per bounce, hashes of ``lane`` with a key
+        per bounce and dimension."""
         ctx = mi.BSDFContext()
         L = mi.Spectrum(0.0)
         beta = mi.Spectrum(1.0)
@@ -329,9 +338,9 @@ class PSSMLT(IntegratorTemplate):
         active = si.is_valid() & (depth < self.max_depth)
         while dr.hint(active, label="pssmlt delta chain"):
             bsdf = si.bsdf(ray)
-            index = (lane * self.max_depth + depth) * 3
-            bs, w = bsdf.sample(ctx, si, ps.uniform(index, k),
-                                mi.Point2f(ps.uniform(index + 1, k), ps.uniform(index + 2, k)),
+            kd = k + depth * 3
+            bs, w = bsdf.sample(ctx, si, ps.uniform(lane, kd),
+                                mi.Point2f(ps.uniform(lane, kd + 1), ps.uniform(lane, kd + 2)),
                                 active)
             active &= is_delta_sample(bs) & dr.any(w != 0)
             beta *= w
@@ -365,10 +374,8 @@ class PSSMLT(IntegratorTemplate):
         w, h = (int(x) for x in film.crop_size())
         st = self.state
 
-        estimate = self.contribution_bdpt if self.estimator == "bdpt" else self.contribution
-
         def contribution(sampler):
-            return estimate(scene, sensor, sel, sampler)
+            return self.estimate(scene, sensor, sel, sampler)
 
         if self.estimator == "bdpt":
             self.bdpt_estimator(scene, sensor)      # the scene check, before any work
@@ -574,55 +581,43 @@ def step_splats(evaluate, st: "ChainState", ids, image, scale, large_step: float
     then the camera subpaths), so a step cannot be one iteration of a symbolic loop as in
     :func:`steps`: each step is traced and launched on its own (hence wide steps: many
     chains)."""
-    key0 = dr.opaque(mi.UInt32, _key(st.key, st.steps + 1))
+    n = dr.width(ids)
+    dims = st.dims
+    k = ps.hash32(dr.opaque(mi.UInt32, _key(st.key, st.steps + 1)))   # as steps() at t = 0
     st.steps += 1
     pb = st.large_b(large_step)
-    u, lum, pix, rgb, a_sum, n_large, large_sum = _splat_step(
-        evaluate, st.dims, st.extra, large_step, sigma, st.u, st.lum, st.pix, st.rgb,
-        mi.UInt32(ids), key0, pb, scale, image)
-    st.u, st.lum, st.pix, st.rgb = u, lum, pix, rgb
-    st.accepted += _scalar(a_sum)
-    n_large = int(_scalar(n_large))
-    st.large += n_large
-    st.lum_sum += _scalar(large_sum)
-    st.lum_count += n_large
-    st.mutations += dr.width(ids)
-
-
-def _splat_step(evaluate, dims, extra, large_step, sigma, u, lum_all, pix_all, rgb_all, ids,
-                key0, pb, scale, image):
-    """The body of :func:`step_splats` on its arrays: splats into ``image``; returns the
-    chains' new state and the step's sums."""
-    n = dr.width(ids)
-    k = ps.hash32(key0)                             # the step's key, as steps() at t = 0
     large = ps.large_steps(ids, k, large_step)
-    pix, rgb, lum = evaluate(ps.primary_sampler(u, dims, ids, k, large, sigma, extra))
+    pix, rgb, lum = evaluate(ps.primary_sampler(st.u, dims, ids, k, large, sigma, st.extra))
     dr.eval(pix, rgb, lum)       # once: every use below would otherwise trace the walks again
-    lum_c = dr.gather(mi.Float, lum_all, ids)
-    a, w_c, w_p = kelemen_weights(lum, lum_c, large, scale, pb)
+    a, w_c, w_p = kelemen_weights(lum, dr.gather(mi.Float, st.lum, ids), large, scale, pb)
     for j in range(len(pix)):
-        rgb_c = dr.gather(mi.Color3f, rgb_all[j], ids)
-        splat(image, dr.gather(mi.UInt32, pix_all[j], ids), rgb_c * w_c,
+        rgb_c = dr.gather(mi.Color3f, st.rgb[j], ids)
+        splat(image, dr.gather(mi.UInt32, st.pix[j], ids), rgb_c * w_c,
               (w_c > 0) & dr.any(rgb_c != 0))
         splat(image, pix[j], rgb[j] * w_p, (w_p > 0) & dr.any(rgb[j] != 0))
     accept = ps.uniform(ids, ps.stream(k, ps.STREAM_ACCEPT)) < a
     flat = dr.arange(mi.UInt32, n * dims)
     row = flat // dims
     index = dr.gather(mi.UInt32, ids, row) * dims + (flat - row * dims)
-    prop = ps.propose(dr.gather(mi.Float, u, index), index, k, dr.gather(mi.Bool, large, row),
-                      sigma)
+    prop = ps.propose(dr.gather(mi.Float, st.u, index), index, k,
+                      dr.gather(mi.Bool, large, row), sigma)
     take = dr.gather(mi.Bool, accept, row)
     sums = (dr.sum(a), dr.sum(dr.select(large, 1, 0)), dr.sum(dr.select(large, lum, 0.0)))
-    dr.eval(image, prop, take, accept, lum, pix, rgb, sums)
+    dr.eval(image, prop, take, accept, sums)
     # the accepted chains take the proposal, in place (nothing else refers to the arrays
     # any more, so the scatters copy nothing)
-    dr.scatter(u, prop, index, take)
-    dr.scatter(lum_all, lum, ids, accept)
+    dr.scatter(st.u, prop, index, take)
+    dr.scatter(st.lum, lum, ids, accept)
     for j in range(len(pix)):
-        dr.scatter(pix_all[j], pix[j], ids, accept)
-        dr.scatter(rgb_all[j], rgb[j], ids, accept)
-    dr.eval(u, lum_all, pix_all, rgb_all)
-    return (u, lum_all, pix_all, rgb_all, *sums)
+        dr.scatter(st.pix[j], pix[j], ids, accept)
+        dr.scatter(st.rgb[j], rgb[j], ids, accept)
+    dr.eval(st.u, st.lum, st.pix, st.rgb)
+    a_sum, n_large, large_sum = (_scalar(x) for x in sums)
+    st.accepted += a_sum
+    st.large += int(n_large)
+    st.lum_sum += large_sum
+    st.lum_count += int(n_large)
+    st.mutations += n
 
 
 def run(evaluate, st: "ChainState", mutations: int, image, scale, large_step: float,
