@@ -10,8 +10,8 @@ into its kernels); ``--few`` adds ``veach_mis`` and ``cornell_box``.  Direct lig
 (``max_depth`` 2, ``hide_emitters``) on the light fields, ``max_depth`` 4 on the few-light
 scenes.  Methods:
 Mitsuba's ``path`` and our ``nee_path`` with ``light_selection`` = ``power``, ``adaptive`` (only
-up to ``--adaptive-max`` lights: its set-up is O(N) scalar work) and ``bvh``; the same estimator
-otherwise, so the columns compare light selection.
+up to ``--adaptive-max`` lights: its set-up is O(N) scalar work), ``bvh`` and ``ris``; the same
+estimator otherwise, so the columns compare light selection.
 
 Measured per scene, side by side in one process:
 
@@ -23,12 +23,18 @@ Measured per scene, side by side in one process:
   choice;
 * **per-call overhead**: wall time of a later 1-spp render (Mitsuba's per-call work over the
   emitters, which at thousands of lights dwarfs the kernel);
-* **time per sample**: the execution time of the render's kernels from Dr.Jit's kernel history
-  (``JitFlag.KernelHistory``), divided by pixels x spp; the least of ``--repeats`` renders taken
-  round-robin over the methods (the least disturbed by other work on a shared machine);
+* **time per sample**: the marginal cost of a sample, from the execution time of the render's
+  kernels in Dr.Jit's kernel history (``JitFlag.KernelHistory``): (kernel time at 8 x
+  ``--spp`` - kernel time at ``--spp``) / (pixels x 7 ``--spp``), each the least of
+  ``--repeats`` renders taken round-robin over the methods (the least disturbed by other work
+  on a shared machine).  The difference leaves out the kernels every ``mi.render`` call runs
+  once whatever its spp (Mitsuba uploads every emitter's data for its virtual calls: 15-35 ms
+  per call at 16,384 lights, as much as 100 samples per pixel of a 64 x 64 image would cost);
+  they are the **per-call kernels** column (kernel time at ``--spp`` minus spp x pixels x the
+  time per sample);
 * **relMSE at 1 spp**: sum over pixels of (I - R)^2 / sum R^2 of a ``--spp`` render times spp,
-  averaged over the repeats; R: ``nee_path`` with ``bvh`` at ``--ref-spp`` (its own noise, about
-  spp / ref-spp of a method's relMSE, is left in);
+  averaged over the repeats; R: ``nee_path`` with ``ris`` at ``--ref-spp`` (its own noise, about
+  spp / ref-spp of ris's relMSE, is left in);
 * **efficiency vs path** = (relMSE x time per sample) of ``path`` / that of the method.
 
 Writes ``light_tree.json``, ``light_tree.md`` (the table) and ``light_tree_cost.png`` (time per
@@ -48,7 +54,9 @@ from .config import REPO
 
 OUT = REPO / "benchmarks" / "results" / "light_tree"
 LIGHTS = (64, 1024, 4096, 16384)
-SELECTIONS = ("power", "adaptive", "bvh")
+SELECTIONS = ("power", "adaptive", "bvh", "ris")
+#: the timing renders take this many times --spp (time per sample is their slope)
+TIME_FACTOR = 8
 
 
 def _methods(n_lights, adaptive_max, depth):
@@ -138,15 +146,17 @@ def measure(scene_name: str, n_lights, res: int, spp: int, repeats: int, ref_spp
             dr.sync_thread()
             wall.append((time.perf_counter() - t) / m * 1e9)
         choose_ns[name] = min(wall[1:])       # the least disturbed of the warm runs
-    ref, _, _ = render(integs["bvh"], ref_spp, 12345)
+    ref, _, _ = render(integs["ris"], ref_spp, 12345)
     ref_sq = float((ref ** 2).sum())
-    rel, tps, means = {m: [] for m in methods}, {m: [] for m in methods}, {m: [] for m in methods}
+    rel, means = {m: [] for m in methods}, {m: [] for m in methods}
+    k_lo, k_hi = {m: [] for m in methods}, {m: [] for m in methods}
     for r in range(repeats):
         for name in methods:
             img, _, kern = render(integs[name], spp, 1000 + 17 * r)
             rel[name].append(float(((img - ref) ** 2).sum()) / ref_sq * spp)
-            tps[name].append(kern / (pixels * spp))
+            k_lo[name].append(kern)
             means[name].append(float(img.mean()))
+            k_hi[name].append(render(integs[name], spp * TIME_FACTOR, 5000 + 17 * r)[2])
     out = {"scene": scene_name, "lights": n_lights if n_lights is not None else
            len(scene.emitters()), "pixels": pixels, "spp": spp, "repeats": repeats,
            "ref_spp": ref_spp, "load_s": load_s, "ref_mean": float(ref.mean()), "methods": {}}
@@ -155,8 +165,13 @@ def measure(scene_name: str, n_lights, res: int, spp: int, repeats: int, ref_spp
             "setup_s": setup[name], "overhead_s": overhead[name],
             "selection_s": select_s.get(name), "choose_ns": choose_ns.get(name),
             "relmse_1spp": statistics.mean(rel[name]),
-            "time_per_sample_us": min(tps[name]) * 1e6,
+            "time_per_sample_us": (min(k_hi[name]) - min(k_lo[name]))
+            / (pixels * spp * (TIME_FACTOR - 1)) * 1e6,
+            "kernel_us_at_spp": min(k_lo[name]) / (pixels * spp) * 1e6,
             "mean_ratio": statistics.mean(means[name]) / max(float(ref.mean()), 1e-30)}
+    for m in out["methods"].values():
+        m["per_call_kernels_ms"] = (m["kernel_us_at_spp"] - m["time_per_sample_us"]) \
+            * pixels * spp * 1e-3
     base = out["methods"]["path"]
     for name, m in out["methods"].items():
         m["efficiency_vs_path"] = ((base["relmse_1spp"] * base["time_per_sample_us"])
@@ -187,13 +202,14 @@ def _fmt(x, f="{:.3g}"):
 
 
 def table(results) -> str:
-    cols = ["path", "power", "adaptive", "bvh"]
+    cols = ["path", *SELECTIONS]
     head = ("| scene | lights | relMSE at 1 spp: " + " / ".join(cols) + " | time per sample (us): "
             + " / ".join(cols) + " | efficiency vs path: " + " / ".join(cols[1:])
+            + " | per-call kernels (ms): " + " / ".join(cols)
             + " | set-up, first render (s): " + " / ".join(cols) + " | per-call overhead (s): "
             + " / ".join(cols) + " | selection set-up (s): " + " / ".join(cols[1:])
-            + " | one choice alone (ns): " + " / ".join(cols[1:]) + " | bvh mean / reference |")
-    lines = [head, "|" + "---|" * 11]
+            + " | one choice alone (ns): " + " / ".join(cols[1:]) + " | mean / reference: bvh / ris |")
+    lines = [head, "|" + "---|" * 12]
     for r in results:
         m = r["methods"]
 
@@ -204,19 +220,24 @@ def table(results) -> str:
             + " / ".join(get("relmse_1spp", c) for c in cols) + " | "
             + " / ".join(get("time_per_sample_us", c) for c in cols) + " | "
             + " / ".join(get("efficiency_vs_path", c, "{:.1f}x") for c in cols[1:]) + " | "
+            + " / ".join(get("per_call_kernels_ms", c, "{:.1f}") for c in cols) + " | "
             + " / ".join(get("setup_s", c, "{:.1f}") for c in cols) + " | "
             + " / ".join(get("overhead_s", c, "{:.1f}") for c in cols) + " | "
             + " / ".join(get("selection_s", c, "{:.2f}") for c in cols[1:]) + " | "
             + " / ".join(get("choose_ns", c, "{:.3g}") for c in cols[1:]) + " | "
-            + f"{m['bvh']['mean_ratio']:.4f} |")
+            + f"{m['bvh']['mean_ratio']:.4f} / {m['ris']['mean_ratio']:.4f} |")
     fields = [r for r in results if r["scene"] == "light_field"]
     if fields:
         lo, hi = min(fields, key=lambda r: r["lights"]), max(fields, key=lambda r: r["lights"])
         b = [r["methods"]["bvh"] for r in (lo, hi)]
         path_lo, path_hi = (r["methods"]["path"]["time_per_sample_us"] for r in (lo, hi))
-        lines += ["", f"bvh time per sample at {hi['lights']:,} / at {lo['lights']:,} lights: "
-                  f"{b[1]['time_per_sample_us'] / b[0]['time_per_sample_us']:.2f}x (path: "
-                  f"{path_hi / path_lo:.2f}x); "
+        ris_lo, ris_hi = (r["methods"]["ris"]["time_per_sample_us"] for r in (lo, hi))
+        lines += ["", f"time per sample at {hi['lights']:,} / at {lo['lights']:,} lights: bvh "
+                  f"{b[1]['time_per_sample_us'] / b[0]['time_per_sample_us']:.2f}x, ris "
+                  f"{ris_hi / ris_lo:.2f}x, path {path_hi / path_lo:.2f}x; "
+                  f"relative to path's own (the selection's share): bvh "
+                  f"{b[1]['time_per_sample_us'] / b[0]['time_per_sample_us'] / (path_hi / path_lo):.2f}x, "
+                  f"ris {ris_hi / ris_lo / (path_hi / path_lo):.2f}x; "
                   f"one bvh choice alone: {b[1]['choose_ns'] / b[0]['choose_ns']:.2f}x; "
                   f"bvh first render / path first render at {hi['lights']:,} lights: "
                   f"{b[1]['setup_s'] / hi['methods']['path']['setup_s']:.2f}x; bvh selection "
@@ -226,7 +247,9 @@ def table(results) -> str:
     for r in few:
         m = r["methods"]
         lines.append(f"{r['scene']}: efficiency bvh / power = "
-                     f"{m['bvh']['efficiency_vs_path'] / m['power']['efficiency_vs_path']:.2f}")
+                     f"{m['bvh']['efficiency_vs_path'] / m['power']['efficiency_vs_path']:.2f}, "
+                     f"ris / power = "
+                     f"{m['ris']['efficiency_vs_path'] / m['power']['efficiency_vs_path']:.2f}")
     return "\n".join(lines) + "\n"
 
 
@@ -239,7 +262,7 @@ def chart(path: Path, results) -> None:
         return
     fig, ax = plt.subplots(1, 2, figsize=(10, 4))
     for name, colour in (("path", "k"), ("power", "tab:blue"), ("adaptive", "tab:orange"),
-                         ("bvh", "tab:green")):
+                         ("bvh", "tab:green"), ("ris", "tab:red")):
         pts = [(r["lights"], r["methods"][name]) for r in fields if name in r["methods"]]
         if not pts:
             continue

@@ -38,6 +38,20 @@ MUTANTS = [
     ("tree-importance-without-distance", T,
      "imp = dr.abs(phi) * dr.maximum(cos_p, RECEIVER_FLOOR) * inv_d2",
      "imp = dr.abs(phi) * dr.maximum(cos_p, RECEIVER_FLOOR)", TESTS),
+    # ris: the resampled weight without 1/M (the mean of the candidates' weights): too bright
+    ("ris-weight-without-candidate-mean", T,
+     "ratio = dr.select(ok, p_y * w_sum / (m * dr.select(ok, h_y, 1.0)), 1.0)",
+     "ratio = dr.select(ok, p_y * w_sum / dr.select(ok, h_y, 1.0), 1.0)", TESTS),
+    # ris: the reservoir's uniform is not rescaled after a decision: the kept candidate is no
+    # longer drawn in proportion to its weight
+    ("ris-reservoir-v-not-rescaled", T,
+     "v = dr.select(take, v / dr.select(take, q, 1.0),\n"
+     "                          (v - q) / dr.select(take | (q >= 1.0), 1.0, 1.0 - q))",
+     "v = dr.select(take, v, v)", TESTS),
+    # ris: the tree's weight 1 / p(Y) on the resampled choice
+    ("ris-tree-weight-on-resampled-choice", T,
+     "return emitter, sel, None, dr.select(ok, sel / dr.select(ok, ratio, 1.0), 0.0)",
+     "return emitter, sel, None, dr.select(ok, sel, 0.0)", TESTS),
     # the vectorised power kernel assigns samples to the wrong emitters
     ("power-samples-mixed-between-emitters", "integrators/sampling/light_selection.py",
      "mi.UInt32(np.repeat(idx, k).astype(np.uint32))",

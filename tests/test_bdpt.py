@@ -104,11 +104,11 @@ def test_environment_same_image_as_path(env, tmp_path_factory):
                     batches=BATCHES, spp=SPP)
 
 
-@pytest.mark.parametrize("mode", ["uniform", "power", "adaptive", "bvh"])
+@pytest.mark.parametrize("mode", ["uniform", "power", "adaptive", "bvh", "ris"])
 def test_light_selection_modes_same_image_as_path(mode):
     """An environment, an area lamp and a point light (diffuse balls: path has no caustics
     to miss), each light_selection mode: the same expected image as Mitsuba's path
-    (adaptive and bvh: next-event estimation by their pmf, light subpaths by power)."""
+    (adaptive, bvh and ris: next-event estimation by their pmf, light subpaths by power)."""
     scene = sky_scene({"type": "constant", "radiance": {"type": "rgb",
                                                         "value": [0.2, 0.25, 0.3]}},
                       ball="diffuse", lights=True)

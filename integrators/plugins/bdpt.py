@@ -53,7 +53,7 @@ the environment seen directly is black; light tracing (t = 1) sees through area 
 and never splats a light vertex that lies on one, so every strategy produces the same paths.
 
 **light_selection**: ``uniform`` and ``power`` choose the light of a light subpath and of a light
-sample by the same pmf.  ``adaptive`` and ``bvh`` depend on the shading point, which the light
+sample by the same pmf.  ``adaptive``, ``bvh`` and ``ris`` depend on the shading point, which the light
 subpath's start has not: they choose the light of next-event estimation (s = 1) only, and the
 light subpath starts by the ``power`` pmf; the weights take each strategy's own pmf (the ratio
 of the two enters next-event estimation's weight and the first light vertex's ``dvcm``).
@@ -109,7 +109,7 @@ class BDPT(IntegratorTemplate):
         Param("light_selection", "choice", "power", choices=light_selection.MODES,
               doc="Discrete pdf for choosing the light of a light sample (next-event "
                   "estimation); the light subpath starts by the same pmf for uniform and "
-                  "power, by power for adaptive and bvh (it has no shading point)."),
+                  "power, by power for adaptive, bvh and ris (it has no shading point)."),
         HIDE_EMITTERS,
         Param("strategy_images", "bool", False,
               doc="Also write the weighted contribution of every strategy (s, t) as AOV "
@@ -121,9 +121,9 @@ class BDPT(IntegratorTemplate):
         self.strategies = strategy_list(self.max_depth) if self.strategy_images else []
         self.rr = roulette.Roulette.from_params(self.params)
         self.lights = light_selection.SelectionCache(self.light_selection)
-        # the light subpath has no shading point: adaptive and bvh start it by power
+        # the light subpath has no shading point: adaptive, bvh and ris start it by power
         self.lights_e = light_selection.SelectionCache("power") \
-            if self.light_selection in ("adaptive", "bvh") else None
+            if self.light_selection in ("adaptive", "bvh", "ris") else None
         self._tables = (None, None)
 
     # ---- checks ---------------------------------------------------------------------------
@@ -423,7 +423,7 @@ class BDPT(IntegratorTemplate):
 
             # s = 1: next-event estimation
             nee = smooth & (depth + 1 <= max_depth)
-            ds_l, w_em, norm = sel.sample_direction(si, sampler.next_1d(nee),
+            ds_l, w_em, norm = sel.sample_direction(si, sel.sample_1d(sampler, nee),
                                                     sampler.next_2d(nee), nee)
             vis = nee & dr.any(w_em != 0)
             vis &= ~scene.ray_test(si.spawn_ray_to(ds_l.p), vis)

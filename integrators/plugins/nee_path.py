@@ -8,7 +8,8 @@ The lecture's estimator with each degree of freedom of its last slide as a param
   estimate the direct light (splitting of the light estimate), combined by ``heuristic``
   (``beta``, ``alpha``) exactly as in ``direct_mis`` (:mod:`integrators.nee`).  Delta lights and
   delta lobes take weight 1.  Vertices without a smooth lobe cast no shadow rays.
-* **Light selection**: ``light_selection`` = ``uniform`` | ``power`` | ``adaptive``.
+* **Light selection**: ``light_selection`` = ``uniform`` | ``power`` | ``adaptive`` | ``bvh`` |
+  ``ris`` (:mod:`integrators.sampling.light_selection`).
 * **Path length**: ``max_depth`` (-1 unlimited), Russian roulette from ``rr_depth`` with
   ``rr`` = ``none`` | ``fixed`` (terminate with probability ``rr_prob``, survivors divided by
   1 - rr_prob) | ``throughput`` (survive with min(max(beta) eta^2, 0.95), as Mitsuba's ``path``

@@ -6,6 +6,8 @@ r"""Light selection: a discrete pdf over the scene's emitters, shared by every i
              (:class:`AdaptiveLightSelection`), with 5 % of the power pmf mixed in.
 ``bvh``      a light tree (:mod:`.light_tree`): p(j | x) the product of the importance ratios on
              the way from the root to light j, O(log N) per shading point.
+``ris``      resampled importance sampling over 4 candidates from that tree, kept in proportion
+             to their lights' own importance at x (:class:`.light_tree.ResampledTreeSelection`).
 
 Power is measured with Mitsuba's own sampling routines over a fixed low-discrepancy point set:
 area lights by uniform positions on their shape, every other emitter by ``sample_ray`` (the
@@ -40,12 +42,13 @@ import numpy as np
 from ..common import channel_mean, is_jit, safe_div
 from ..params import Param
 
-MODES = ("uniform", "power", "adaptive", "bvh")
+MODES = ("uniform", "power", "adaptive", "bvh", "ris")
 
 PARAM = Param("light_selection", "choice", "power", choices=MODES,
               doc="Discrete pdf for choosing the light of a light sample (adaptive: per "
                   "shading point, from power, distance and orientation, O(N); bvh: the same "
-                  "kind of bound traversed in a light tree, O(log N)).")
+                  "kind of bound traversed in a light tree, O(log N); ris: 4 candidates from "
+                  "that tree, one kept by resampled importance sampling).")
 
 POWER_SAMPLES_JIT = 1 << 14
 POWER_SAMPLES_SCALAR = 256
@@ -199,6 +202,10 @@ def _no_direction_sample():
 class LightSelection:
     """Per-scene light selection: sampling an emitter and the pmf of a given emitter."""
 
+    #: dimensions of the ``sample1`` that :meth:`choose` and :meth:`sample_direction` read (a
+    #: Float for 1, a Point2f for 2: ``sample_1d`` draws it)
+    SAMPLE_DIMS = 1
+
     def __init__(self, scene, mode: str = "power"):
         self.scene, self.mode = scene, mode
         self.emitters = scene.emitters()
@@ -245,6 +252,10 @@ class LightSelection:
             return dr.gather(mi.EmitterPtr, self.emitters_dr, idx, active)
         return self.emitters[int(idx)]
 
+    def sample_1d(self, sampler, active=True):
+        """The ``sample1`` of a light choice from ``sampler`` (:attr:`SAMPLE_DIMS` numbers)."""
+        return sampler.next_2d(active) if self.SAMPLE_DIMS == 2 else sampler.next_1d(active)
+
     def choose(self, si, sample1, active=True):
         """Pick the emitter of a light sample at ``si``: (EmitterPtr, p(j | si), norm).
 
@@ -277,15 +288,22 @@ class LightSelection:
         :meth:`pdf_direction` from the same ``si``."""
         if self.count == 0:
             return _no_direction_sample(), mi.Spectrum(0.0), None
-        emitter, sel, norm = self.choose(si, sample1, active)
+        emitter, sel, norm, divisor = self.weighted_choice(si, sample1, active)
         active = active & (sel > 0)
         if not is_jit() and not active:
             return _no_direction_sample(), mi.Spectrum(0.0), norm
         ds, weight = emitter.sample_direction(si, sample2, active)
         ds.emitter = emitter
         ds.pdf = ds.pdf * sel
-        weight = dr.select(active & (sel > 0), weight / dr.select(sel > 0, sel, 1.0), 0.0)
+        weight = dr.select(active, weight / dr.select(active, divisor, 1.0), 0.0)
         return ds, weight, norm
+
+    def weighted_choice(self, si, sample1, active=True):
+        """(EmitterPtr, p(j | si), norm, what the light sample's weight is divided by): p(j)
+        itself here; a resampled choice (light_tree.ResampledTreeSelection) divides by the
+        inverse of its resampling weight and keeps p(j) for the MIS densities."""
+        emitter, sel, norm = self.choose(si, sample1, active)
+        return emitter, sel, norm, sel
 
     def pdf_direction(self, si_from, si_hit, active=True, norm=None):
         """Solid-angle density with which light sampling from ``si_from`` produces the
@@ -518,7 +536,7 @@ class AdaptiveLightSelection(LightSelection):
 
 
 def make(scene, mode: str) -> LightSelection:
-    if mode == "bvh":
-        from .light_tree import LightTreeSelection
-        return LightTreeSelection(scene)
+    if mode in ("bvh", "ris"):
+        from .light_tree import LightTreeSelection, ResampledTreeSelection
+        return (LightTreeSelection if mode == "bvh" else ResampledTreeSelection)(scene)
     return AdaptiveLightSelection(scene) if mode == "adaptive" else LightSelection(scene, mode)

@@ -80,7 +80,7 @@ class VertexEstimator:
     @staticmethod
     def light_sample(scene, sel, sampler, si, active) -> LightSample:
         """One light sample at ``si`` with its shadow ray."""
-        s1, s2 = sampler.next_1d(active), sampler.next_2d(active)
+        s1, s2 = sel.sample_1d(sampler, active), sampler.next_2d(active)
         ds, em_weight, norm = sel.sample_direction(si, s1, s2, active)
         act = active & dr.any(em_weight != 0)
         act &= lnot(scene.ray_test(si.spawn_ray_to(ds.p), act))
@@ -108,7 +108,7 @@ class VertexEstimator:
                 f, pdf_b = bsdf.eval_pdf(ctx, si, si.to_local(ls.ds.d), ls.visible)
                 L += self.light_term(ls, f, [self.n_b * pdf_b])
             else:
-                sampler.next_1d()
+                sel.sample_1d(sampler)
                 sampler.next_2d()
             j += 1
         return L / self.n_l
