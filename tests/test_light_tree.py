@@ -438,6 +438,30 @@ def test_light_field_scene_renders():
 def test_bad_mode_rejected():
     with pytest.raises(Exception, match="light_selection"):
         mi.load_dict({"type": "nee_path", "light_selection": "bvhh"})
+    # light_candidates changes nothing outside ris: refused, not ignored
+    for nee in ("direct_mis", "nee_path", "mis3", "bdpt"):
+        with pytest.raises(Exception, match="'light_candidates' = 8 is invalid with "
+                                            "light_selection='bvh'"):
+            mi.load_dict({"type": nee, "light_selection": "bvh", "light_candidates": 8})
+    with pytest.raises(Exception, match="'light_candidates' = 0 is invalid; allowed"):
+        mi.load_dict({"type": "nee_path", "light_selection": "ris", "light_candidates": 0})
+    integ = mi.load_dict({"type": "nee_path", "light_selection": "ris", "light_candidates": 8})
+    assert integ.lights.candidates == 8
+
+
+def test_ris_one_candidate_is_the_tree(plane):
+    """light_candidates = 1: the light the tree picks for the same u, weighted 1 / p."""
+    scene = plane[0]
+    tree, one = make(scene, "bvh"), make(scene, "ris", 1)
+    rng = np.random.default_rng(8)
+    p, n = _points(1 << 12, rng, z=(0.0, 1.4))
+    si = _si(p, n)
+    u = rng.random(len(p)).astype(np.float32)
+    em_t, pmf_t, _ = tree.choose(si, mi.Float(u))
+    em_r, pmf_r, _, div = one.weighted_choice(si, mi.Point2f(mi.Float(u), 0.5))
+    assert np.array_equal(_index_of(tree, em_t), _index_of(one, em_r))
+    assert np.array_equal(np.array(pmf_t), np.array(pmf_r))
+    assert np.allclose(np.array(div), np.array(pmf_t), rtol=1e-5, atol=0)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -473,9 +497,10 @@ def test_spectral_variant():
         d = mixed_scene(dark=False)
         d["sensor"] = {"type": "perspective", "film": {"type": "hdrfilm", "width": 8,
                                                        "height": 8}}
-        img = mi.render(mi.load_dict(d), integrator=mi.load_dict(
-            {"type": "nee_path", "light_selection": "bvh"}), spp=4)
-        assert np.all(np.isfinite(np.array(img)))
+        for mode in ("bvh", "ris"):
+            img = mi.render(mi.load_dict(d), integrator=mi.load_dict(
+                {"type": "nee_path", "light_selection": mode}), spp=4)
+            assert np.all(np.isfinite(np.array(img))) and np.array(img).mean() > 0, mode
     finally:
         integrators.set_variant("llvm_ad_rgb")
 

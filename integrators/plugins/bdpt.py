@@ -110,6 +110,7 @@ class BDPT(IntegratorTemplate):
               doc="Discrete pdf for choosing the light of a light sample (next-event "
                   "estimation); the light subpath starts by the same pmf for uniform and "
                   "power, by power for adaptive, bvh and ris (it has no shading point)."),
+        light_selection.CANDIDATES_PARAM,
         HIDE_EMITTERS,
         Param("strategy_images", "bool", False,
               doc="Also write the weighted contribution of every strategy (s, t) as AOV "
@@ -120,7 +121,7 @@ class BDPT(IntegratorTemplate):
         self.mis = Mis("balance" if self.heuristic == "none" else self.heuristic, self.beta)
         self.strategies = strategy_list(self.max_depth) if self.strategy_images else []
         self.rr = roulette.Roulette.from_params(self.params)
-        self.lights = light_selection.SelectionCache(self.light_selection)
+        self.lights = light_selection.SelectionCache.of(self)
         # the light subpath has no shading point: adaptive, bvh and ris start it by power
         self.lights_e = light_selection.SelectionCache("power") \
             if self.light_selection in ("adaptive", "bvh", "ris") else None

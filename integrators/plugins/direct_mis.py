@@ -38,7 +38,7 @@ class DirectMIS(IntegratorTemplate):
         Param("light_samples", "int", 1, min=0, max=MAX_COUNT, doc="N_l, light samples per camera sample."),
         Param("bsdf_samples", "int", 1, min=0, max=MAX_COUNT, doc="N_b, BSDF samples per camera sample."),
         *mis.PARAMS,
-        light_selection.PARAM, HIDE_EMITTERS,
+        light_selection.PARAM, light_selection.CANDIDATES_PARAM, HIDE_EMITTERS,
     )
 
     def setup(self):
@@ -46,7 +46,7 @@ class DirectMIS(IntegratorTemplate):
             raise ParameterError("direct_mis: parameters 'light_samples' = 0 and 'bsdf_samples' "
                                  "= 0 estimate nothing; allowed: at least one of them >= 1")
         self.heur = mis.Heuristic.from_params(self.params)
-        self.lights = light_selection.SelectionCache(self.light_selection)
+        self.lights = light_selection.SelectionCache.of(self)
         self.vertex = VertexEstimator(self.heur, self.light_samples, self.bsdf_samples)
 
     def sample(self, scene, sampler, ray, medium=None, active=True):

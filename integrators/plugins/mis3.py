@@ -142,6 +142,7 @@ class MIS3(IntegratorTemplate):
                   "(the default; `fixed` when a p-vector is given without `selection`)."),
         dataclasses.replace(mis.PARAMS[0], default="balance"), *mis.PARAMS[1:],
         dataclasses.replace(light_selection.PARAM, default="adaptive"),
+        light_selection.CANDIDATES_PARAM,
         MAX_DEPTH, *roulette.RR_PARAMS, HIDE_EMITTERS,
     )
 
@@ -159,7 +160,7 @@ class MIS3(IntegratorTemplate):
                                  "probabilities in [0, 1] with a positive sum")
         self.p_fixed = (self.p_cosine / total, self.p_glossy / total, self.p_light / total)
         self.heur = mis.Heuristic.from_params(self.params)
-        self.lights = light_selection.SelectionCache(self.light_selection)
+        self.lights = light_selection.SelectionCache.of(self)
         self.vertex = VertexEstimator(self.heur, 1, 1, roulette.Roulette.from_params(self.params))
         self.vertex.allocates = self.params["selection"] == "learned"
         self.learned = self.params["selection"] == "learned"

@@ -64,7 +64,7 @@ class NEEPath(IntegratorTemplate):
               doc="rr=adaptive: paths alive at once (bounds memory; split factors are scaled "
                   "down where a bounce would pass it)."),
         dataclasses.replace(mis.PARAMS[0], default="power"), *mis.PARAMS[1:],
-        light_selection.PARAM,
+        light_selection.PARAM, light_selection.CANDIDATES_PARAM,
         Param("light_samples", "int", 1, min=0, max=MAX_COUNT, doc="Shadow rays per vertex (NEE splitting)."),
         Param("split", "int", 1, min=1, max=MAX_COUNT, doc="Independent continuations from the first hit."),
         HIDE_EMITTERS,
@@ -72,7 +72,7 @@ class NEEPath(IntegratorTemplate):
 
     def setup(self):
         self.heur = mis.Heuristic.from_params(self.params)
-        self.lights = light_selection.SelectionCache(self.light_selection)
+        self.lights = light_selection.SelectionCache.of(self)
         self.adaptive = self.rr == "adaptive"
         rr = dict(self.params, rr="none") if self.adaptive else self.params
         self.vertex = VertexEstimator(self.heur, self.light_samples, 1,

@@ -6,7 +6,8 @@ r"""Light selection: a discrete pdf over the scene's emitters, shared by every i
              (:class:`AdaptiveLightSelection`), with 5 % of the power pmf mixed in.
 ``bvh``      a light tree (:mod:`.light_tree`): p(j | x) the product of the importance ratios on
              the way from the root to light j, O(log N) per shading point.
-``ris``      resampled importance sampling over 4 candidates from that tree, kept in proportion
+``ris``      resampled importance sampling over ``light_candidates`` (default 4) lights from that
+             tree, one kept in proportion
              to their lights' own importance at x (:class:`.light_tree.ResampledTreeSelection`).
 
 Power is measured with Mitsuba's own sampling routines over a fixed low-discrepancy point set:
@@ -49,6 +50,12 @@ PARAM = Param("light_selection", "choice", "power", choices=MODES,
                   "shading point, from power, distance and orientation, O(N); bvh: the same "
                   "kind of bound traversed in a light tree, O(log N); ris: 4 candidates from "
                   "that tree, one kept by resampled importance sampling).")
+
+#: candidates per light sample of light_selection=ris
+CANDIDATES = 4
+CANDIDATES_PARAM = Param("light_candidates", "int", CANDIDATES, min=1, max=64,
+                         doc="light_selection=ris: lights drawn from the light tree per light "
+                             "sample, one kept by resampling (1: the tree's own choice).")
 
 POWER_SAMPLES_JIT = 1 << 14
 POWER_SAMPLES_SCALAR = 256
@@ -323,12 +330,25 @@ class LightSelection:
 class SelectionCache:
     """Keeps the LightSelection of the scene an integrator last rendered."""
 
-    def __init__(self, mode: str):
-        self.mode, self._scene, self._sel = mode, None, None
+    def __init__(self, mode: str, candidates: int = CANDIDATES):
+        self.mode, self.candidates, self._scene, self._sel = mode, candidates, None, None
+
+    @classmethod
+    def of(cls, plugin) -> "SelectionCache":
+        """The cache of an integrator with ``light_selection`` and ``light_candidates``
+        (:data:`CANDIDATES_PARAM`); ``light_candidates`` given with another mode than ris is
+        refused (it would change nothing)."""
+        mode, m = plugin.light_selection, plugin.light_candidates
+        if "light_candidates" in plugin.given and mode != "ris":
+            from ..params import ParameterError
+            raise ParameterError(f"{plugin.NAME}: parameter 'light_candidates' = {m!r} is "
+                                 f"invalid with light_selection={mode!r}; allowed: only with "
+                                 "light_selection='ris'")
+        return cls(mode, m)
 
     def __call__(self, scene) -> LightSelection:
         if self._scene is not scene:
-            self._sel = make(scene, self.mode)
+            self._sel = make(scene, self.mode, self.candidates)
             self._scene = scene
         return self._sel
 
@@ -535,8 +555,11 @@ class AdaptiveLightSelection(LightSelection):
         return emitter, sel, total
 
 
-def make(scene, mode: str) -> LightSelection:
-    if mode in ("bvh", "ris"):
-        from .light_tree import LightTreeSelection, ResampledTreeSelection
-        return (LightTreeSelection if mode == "bvh" else ResampledTreeSelection)(scene)
+def make(scene, mode: str, candidates: int = CANDIDATES) -> LightSelection:
+    if mode == "bvh":
+        from .light_tree import LightTreeSelection
+        return LightTreeSelection(scene)
+    if mode == "ris":
+        from .light_tree import ResampledTreeSelection
+        return ResampledTreeSelection(scene, candidates)
     return AdaptiveLightSelection(scene) if mode == "adaptive" else LightSelection(scene, mode)
