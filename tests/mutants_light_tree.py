@@ -52,6 +52,15 @@ MUTANTS = [
     ("ris-tree-weight-on-resampled-choice", T,
      "return emitter, sel, None, dr.select(ok, sel / dr.select(ok, ratio, 1.0), 0.0)",
      "return emitter, sel, None, dr.select(ok, sel, 0.0)", TESTS),
+    # ris with the BSDF (resampled by the unshadowed contribution): the kept sample's direction
+    # with the last candidate's emitter weight
+    ("ris-contribution-weight-of-last-candidate", T,
+     "weight = dr.select(take, we_k, weight)",
+     "weight = we_k", TESTS),
+    # ris with the BSDF: the weight without 1/M
+    ("ris-contribution-without-candidate-mean", T,
+     "weight = dr.select(ok, weight * (w_sum / (m * dr.select(ok, h_y, 1.0))), 0.0)",
+     "weight = dr.select(ok, weight * (w_sum / dr.select(ok, h_y, 1.0)), 0.0)", TESTS),
     # the vectorised power kernel assigns samples to the wrong emitters
     ("power-samples-mixed-between-emitters", "integrators/sampling/light_selection.py",
      "mi.UInt32(np.repeat(idx, k).astype(np.uint32))",

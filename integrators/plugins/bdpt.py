@@ -425,7 +425,7 @@ class BDPT(IntegratorTemplate):
             # s = 1: next-event estimation
             nee = smooth & (depth + 1 <= max_depth)
             ds_l, w_em, norm = sel.sample_direction(si, sel.sample_1d(sampler, nee),
-                                                    sampler.next_2d(nee), nee)
+                                                    sampler.next_2d(nee), nee, bsdf=bsdf, ctx=ctx)
             vis = nee & dr.any(w_em != 0)
             vis &= ~scene.ray_test(si.spawn_ray_to(ds_l.p), vis)
             wo_l = si.to_local(ds_l.d)

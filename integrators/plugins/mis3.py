@@ -429,7 +429,7 @@ class MIS3(IntegratorTemplate):
             norm = None   # the light selection's normaliser at si, reused for the emission
             use_l = active & (sampler.next_1d(active) < p3)
             if is_jit() or (use_l and has_lights):
-                ls = vx.light_sample(scene, sel, sampler, si, use_l)
+                ls = vx.light_sample(scene, sel, sampler, si, use_l, bsdf, ctx)
                 norm = ls.norm
                 wo = si.to_local(ls.ds.d)
                 f, pdf_own = bsdf.eval_pdf(ctx, si, wo, ls.visible)

@@ -6,9 +6,9 @@ r"""Light selection: a discrete pdf over the scene's emitters, shared by every i
              (:class:`AdaptiveLightSelection`), with 5 % of the power pmf mixed in.
 ``bvh``      a light tree (:mod:`.light_tree`): p(j | x) the product of the importance ratios on
              the way from the root to light j, O(log N) per shading point.
-``ris``      resampled importance sampling over ``light_candidates`` (default 4) lights from that
-             tree, one kept in proportion
-             to their lights' own importance at x (:class:`.light_tree.ResampledTreeSelection`).
+``ris``      resampled importance sampling (ReSTIR's first stage): ``light_candidates``
+             (default 4) light samples, their lights from that tree, one kept in proportion
+             to its unshadowed contribution f L_e (:class:`.light_tree.ResampledTreeSelection`).
 
 Power is measured with Mitsuba's own sampling routines over a fixed low-discrepancy point set:
 area lights by uniform positions on their shape, every other emitter by ``sample_ray`` (the
@@ -48,8 +48,8 @@ MODES = ("uniform", "power", "adaptive", "bvh", "ris")
 PARAM = Param("light_selection", "choice", "power", choices=MODES,
               doc="Discrete pdf for choosing the light of a light sample (adaptive: per "
                   "shading point, from power, distance and orientation, O(N); bvh: the same "
-                  "kind of bound traversed in a light tree, O(log N); ris: 4 candidates from "
-                  "that tree, one kept by resampled importance sampling).")
+                  "kind of bound traversed in a light tree, O(log N); ris: light_candidates "
+                  "light samples from that tree, one kept by its unshadowed contribution).")
 
 #: candidates per light sample of light_selection=ris
 CANDIDATES = 4
@@ -285,14 +285,15 @@ class LightSelection:
             idx, pmf = self.distr.sample_pmf(sample1, active)
         return self._emitter(idx, active), pmf
 
-    def sample_direction(self, si, sample1, sample2, active=True):
+    def sample_direction(self, si, sample1, sample2, active=True, bsdf=None, ctx=None):
         """Light sample in solid-angle form, selection included.
 
         Returns (ds, weight, norm) with ``ds.pdf = p(j) p_j(omega)`` (for a delta emitter
         ``ds.delta`` is set and ``ds.pdf`` is meaningless for MIS),
         ``weight = L_e G / (p(j) p_j)`` as Mitsuba's ``Emitter.sample_direction`` defines it
         (no visibility test), and ``norm`` from :meth:`choose`, to pass to
-        :meth:`pdf_direction` from the same ``si``."""
+        :meth:`pdf_direction` from the same ``si``.  ``bsdf`` and ``ctx``: the BSDF at ``si``
+        (unused here; a resampling selection targets the unshadowed contribution with it)."""
         if self.count == 0:
             return _no_direction_sample(), mi.Spectrum(0.0), None
         emitter, sel, norm, divisor = self.weighted_choice(si, sample1, active)

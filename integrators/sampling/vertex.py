@@ -78,10 +78,12 @@ class VertexEstimator:
 
     # ---- 1. light samples -----------------------------------------------------------------
     @staticmethod
-    def light_sample(scene, sel, sampler, si, active) -> LightSample:
-        """One light sample at ``si`` with its shadow ray."""
+    def light_sample(scene, sel, sampler, si, active, bsdf=None, ctx=None) -> LightSample:
+        """One light sample at ``si`` with its shadow ray (``bsdf`` and ``ctx``: the BSDF the
+        sample will be evaluated with, for a selection that resamples by the unshadowed
+        contribution)."""
         s1, s2 = sel.sample_1d(sampler, active), sampler.next_2d(active)
-        ds, em_weight, norm = sel.sample_direction(si, s1, s2, active)
+        ds, em_weight, norm = sel.sample_direction(si, s1, s2, active, bsdf=bsdf, ctx=ctx)
         act = active & dr.any(em_weight != 0)
         act &= lnot(scene.ray_test(si.spawn_ray_to(ds.p), act))
         return LightSample(ds, em_weight, act, norm)
@@ -104,7 +106,7 @@ class VertexEstimator:
         j = mi.UInt32(0)
         while dr.hint(j < self.n_l, label="light samples"):
             if is_jit() or active:
-                ls = self.light_sample(scene, sel, sampler, si, active)
+                ls = self.light_sample(scene, sel, sampler, si, active, bsdf, ctx)
                 f, pdf_b = bsdf.eval_pdf(ctx, si, si.to_local(ls.ds.d), ls.visible)
                 L += self.light_term(ls, f, [self.n_b * pdf_b])
             else:
@@ -138,7 +140,7 @@ class VertexEstimator:
                     base = dr.floor(p_light)
                     scale = dr.select(p_light > 1.0,
                                       base + dr.select(u < p_light - base, 1.0, 0.0), p_light)
-            ls = self.light_sample(scene, sel, sampler, si, smooth)
+            ls = self.light_sample(scene, sel, sampler, si, smooth, bsdf, ctx)
             s1, s2 = sampler.next_1d(active), sampler.next_2d(active)
             if bsdf is None:
                 return Direct(mi.Spectrum(0.0), *no_bsdf_sample(), ls.norm, ls, None, None)
@@ -171,7 +173,7 @@ class VertexEstimator:
         count = dr.select(more, mi.UInt32(m) - 1, 0)
         j = mi.UInt32(0)
         while dr.hint(more & (j < count), label="extra light samples"):
-            ls = self.light_sample(scene, sel, sampler, si, more)
+            ls = self.light_sample(scene, sel, sampler, si, more, bsdf, ctx)
             f, pdf_b = bsdf.eval_pdf(ctx, si, si.to_local(ls.ds.d), ls.visible)
             L += safe_div(self.light_term(ls, f, [self.n_b * pdf_b], m), m)
             j += 1
