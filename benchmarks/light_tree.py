@@ -20,7 +20,7 @@ Measured per scene, side by side in one process:
 * **selection set-up**: ``light_selection.make(scene, mode)`` alone (powers, bounds, tree);
 * **one choice alone**: wall time of ``choose`` at 2^20 random points of the floor plane (the
   selection's own cost, without Mitsuba's emitter calls; tracing included, best warm run), per
-  choice;
+  choice (for ris the choice without a BSDF: its candidates by the leaf bound);
 * **per-call overhead**: wall time of a later 1-spp render (Mitsuba's per-call work over the
   emitters, which at thousands of lights dwarfs the kernel);
 * **time per sample**: the marginal cost of a sample, from the execution time of the render's
@@ -137,7 +137,8 @@ def measure(scene_name: str, n_lights, res: int, spp: int, repeats: int, ref_spp
             si = dr.zeros(mi.SurfaceInteraction3f, m)
             si.p = mi.Point3f(mi.Float(pts[0][:m]), mi.Float(pts[1][:m]), float(lo_b[2]))
             si.n = mi.Vector3f(0, 0, 1)
-            u = mi.Float(rng.random(m).astype(np.float32))
+            u = [mi.Float(rng.random(m).astype(np.float32)) for _ in range(sel.SAMPLE_DIMS)]
+            u = u[0] if sel.SAMPLE_DIMS == 1 else mi.Point2f(*u)
             dr.eval(si, u)
             dr.sync_thread()
             t = time.perf_counter()
