@@ -46,7 +46,7 @@ MUTANTS = [
     # longer drawn in proportion to its weight
     ("ris-reservoir-v-not-rescaled", T,
      "v = dr.select(take, v / dr.select(take, q, 1.0),\n"
-     "                          (v - q) / dr.select(take | (q >= 1.0), 1.0, 1.0 - q))",
+     "                  (v - q) / dr.select(take | (q >= 1.0), 1.0, 1.0 - q))",
      "v = dr.select(take, v, v)", TESTS),
     # ris: the tree's weight 1 / p(Y) on the resampled choice
     ("ris-tree-weight-on-resampled-choice", T,

@@ -415,6 +415,25 @@ def _up(x):
     return np.nextafter(x.astype(np.float32), np.float32(np.inf))
 
 
+def rotated(u, k, m):
+    """Candidate k of m's uniform: u + k/m modulo 1 (a Cranley-Patterson rotation: uniform for
+    every k, the m together stratified)."""
+    uk = u + mi.Float(k) * (1.0 / m)
+    return dr.minimum(dr.select(uk >= 1.0, uk - 1.0, uk), ONE_MINUS_EPS)
+
+
+def reservoir_step(w, w_sum, v):
+    """One candidate of weight w into a streaming reservoir read by one uniform v: (whether it
+    replaces the kept one, with probability w / (w_sum + w); the new sum; v rescaled so that it
+    stays uniform given the decision)."""
+    w_sum = w_sum + w
+    q = dr.select(w > 0, w / dr.select(w > 0, w_sum, 1.0), 0.0)
+    take = (w > 0) & (v < q)
+    v = dr.select(take, v / dr.select(take, q, 1.0),
+                  (v - q) / dr.select(take | (q >= 1.0), 1.0, 1.0 - q))
+    return take, w_sum, dr.minimum(v, ONE_MINUS_EPS)
+
+
 class DeviceTree:
     """The tree in Dr.Jit arrays (numpy arrays in scalar variants), with the importance bound,
     the traversal and the root-to-leaf pmf."""
@@ -549,17 +568,9 @@ class DeviceTree:
         w_sum = mi.Float(0.0)
         y, p_y, h_y = mi.UInt32(0), mi.Float(0.0), mi.Float(1.0)
         while dr.hint(k < m, label="light tree: candidates"):
-            uk = u + mi.Float(k) * (1.0 / m)
-            uk = dr.minimum(dr.select(uk >= 1.0, uk - 1.0, uk), ONE_MINUS_EPS)
-            light, pmf, imp = self.traverse(p, n, uk, active)
+            light, pmf, imp = self.traverse(p, n, rotated(u, k, m), active)
             w = dr.select(pmf > 0, imp / dr.select(pmf > 0, pmf, 1.0), 0.0)
-            w_sum += w
-            q = dr.select(w > 0, w / dr.select(w > 0, w_sum, 1.0), 0.0)
-            take = (w > 0) & (v < q)
-            # streaming reservoir with one uniform: v stays uniform given the decision
-            v = dr.select(take, v / dr.select(take, q, 1.0),
-                          (v - q) / dr.select(take | (q >= 1.0), 1.0, 1.0 - q))
-            v = dr.minimum(v, ONE_MINUS_EPS)
+            take, w_sum, v = reservoir_step(w, w_sum, v)
             y = dr.select(take, light, y)
             p_y = dr.select(take, pmf, p_y)
             h_y = dr.select(take, imp, h_y)
@@ -905,9 +916,7 @@ class ResampledTreeSelection(LightTreeSelection):
         w_sum, h_y, sel_y = mi.Float(0.0), mi.Float(0.0), mi.Float(0.0)
         k = mi.UInt32(0)
         while dr.hint(k < m, label="light selection: ris candidates"):
-            uk = u + mi.Float(k) * (1.0 / m)
-            uk = dr.minimum(dr.select(uk >= 1.0, uk - 1.0, uk), ONE_MINUS_EPS)
-            emitter, sel, _ = self._choose(si, uk, active, self._traverse)
+            emitter, sel, _ = self._choose(si, rotated(u, k, m), active, self._traverse)
             ok = active & (sel > 0)
             if is_jit() or ok:
                 sk = s2 + mi.Float(k) * mi.Vector2f(R2_STEP)
@@ -917,13 +926,7 @@ class ResampledTreeSelection(LightTreeSelection):
                 f_k = bsdf.eval(ctx, si, si.to_local(ds_k.d), ok)
                 h = dr.select(ok, dr.maximum(luminance(f_k * we_k), 0.0), 0.0)
                 w = dr.select(h > 0, h / dr.select(h > 0, sel, 1.0), 0.0)
-                w_sum += w
-                q = dr.select(w > 0, w / dr.select(w > 0, w_sum, 1.0), 0.0)
-                take = (w > 0) & (v < q)
-                # streaming reservoir with one uniform (as DeviceTree.resample)
-                v = dr.select(take, v / dr.select(take, q, 1.0),
-                              (v - q) / dr.select(take | (q >= 1.0), 1.0, 1.0 - q))
-                v = dr.minimum(v, ONE_MINUS_EPS)
+                take, w_sum, v = reservoir_step(w, w_sum, v)
                 ds = dr.select(take, ds_k, ds)
                 weight = dr.select(take, we_k, weight)
                 h_y = dr.select(take, h, h_y)
