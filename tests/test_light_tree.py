@@ -25,7 +25,7 @@ importance sampling):
   the tree's own weight 1 / p(Y) on the resampled choice, is rejected by the same test;
 * the pmf it reports (for MIS) is the tree's pmf_at of the light it kept;
 * unbiased against the many-light closed form (direct_mis, nee_path, mis3) and against power
-  selection with every kind of emitter, as bvh above;
+  selection with every kind of emitter, as bvh above, also over a glossy floor;
 * lower per-pixel variance than bvh on the 64-light field (one-sided Wilcoxon, as above);
 * with the BSDF given (every integrator gives it), resampling by each candidate's unshadowed
   contribution: the light-sample estimate at floor points has bvh's mean (Welch
@@ -441,11 +441,16 @@ def test_unbiased_many_lights_every_point(plane, nee, mode):
                     max_spp=65536)
 
 
-@pytest.mark.parametrize("mode", ["bvh", "ris"])
-def test_unbiased_mixed_against_power(mode):
+@pytest.mark.parametrize("mode,floor", [("bvh", "diffuse"), ("ris", "diffuse"),
+                                        ("ris", "glossy")])
+def test_unbiased_mixed_against_power(mode, floor):
     """Every kind of emitter (and the environment, chosen outside the tree): bvh (ris) and
-    power selection render the same expected image (block-wise Welch t, kit default alpha)."""
+    power selection render the same expected image (block-wise Welch t, kit default alpha);
+    for ris also over a glossy floor (rough aluminium, alpha 0.15), where its resampling
+    target, the unshadowed contribution, depends on the BSDF."""
     d = mixed_scene()
+    if floor == "glossy":
+        d["floor"]["bsdf"] = {"type": "roughconductor", "material": "Al", "alpha": 0.15}
     d["sensor"] = {"type": "perspective", "fov": 60,
                    "to_world": mi.ScalarTransform4f().look_at([0, -6, 4], [0, 0, 0], [0, 0, 1]),
                    "film": {"type": "hdrfilm", "width": 16, "height": 16,
