@@ -2,11 +2,13 @@ r"""Light-tree benchmark (issue 15): ``light_selection=bvh`` against Mitsuba's `
 ``power`` and ``adaptive`` selections, from a few to many lights.
 
     python -m benchmarks.light_tree [--lights 64 1024 4096 16384] [--res 64] [--spp 4]
-        [--repeats 3] [--ref-spp 512] [--adaptive-max 4096] [--few] [--out DIR]
+        [--repeats 3] [--ref-spp 512] [--adaptive-max 4096] [--glossy N ...] [--few]
+        [--out DIR]
 
 Scenes: ``scenes/tools/make_light_field.py`` (N sphere lights over a floor, powers over three
 decades), built at run time, one fresh process per N (every emitter alive in a process is traced
-into its kernels); ``--few`` adds ``veach_mis`` and ``cornell_box``.  Direct light only
+into its kernels); ``--glossy N ...`` adds light fields over a rough aluminium floor
+(``glossy_field``); ``--few`` adds ``veach_mis`` and ``cornell_box``.  Direct light only
 (``max_depth`` 2, ``hide_emitters``) on the light fields, ``max_depth`` 4 on the few-light
 scenes.  Methods:
 Mitsuba's ``path`` and our ``nee_path`` with ``light_selection`` = ``power``, ``adaptive`` (only
@@ -55,6 +57,8 @@ from .config import REPO
 OUT = REPO / "benchmarks" / "results" / "light_tree"
 LIGHTS = (64, 1024, 4096, 16384)
 SELECTIONS = ("power", "adaptive", "bvh", "ris")
+#: the floor of ``--glossy`` light fields (BSDF-aware selection matters there)
+GLOSSY_FLOOR = {"type": "roughconductor", "material": "Al", "alpha": 0.1}
 #: the timing renders take this many times --spp (time per sample is their slope)
 TIME_FACTOR = 8
 
@@ -88,7 +92,10 @@ def measure(scene_name: str, n_lights, res: int, spp: int, repeats: int, ref_spp
     t0 = time.perf_counter()
     if n_lights is not None:
         import make_light_field
-        scene = mi.load_dict(make_light_field.scene_dict(n_lights, res=res, spp=spp))
+        d = make_light_field.scene_dict(n_lights, res=res, spp=spp)
+        if scene_name == "glossy_field":   # a wet street: the floor rough aluminium
+            d["floor"]["bsdf"] = GLOSSY_FLOOR
+        scene = mi.load_dict(d)
         depth = 2
     else:
         params = {"res": str(res)} if scene_name == "cornell_box" else {
@@ -291,14 +298,17 @@ def main(argv=None) -> int:
     ap.add_argument("--ref-spp", type=int, default=512)
     ap.add_argument("--adaptive-max", type=int, default=4096)
     ap.add_argument("--few", action="store_true", help="also veach_mis and cornell_box")
+    ap.add_argument("--glossy", type=int, nargs="*", default=[], metavar="N",
+                    help="also light fields of N lights over a glossy floor (rough aluminium)")
     ap.add_argument("--out", type=Path, default=OUT)
     ap.add_argument("--one", nargs=2, metavar=("SCENE", "N"), help=argparse.SUPPRESS)
     a = ap.parse_args(argv)
     for k in ("res", "spp", "repeats", "ref_spp"):
         if getattr(a, k) < 1:
             ap.error(f"--{k.replace('_', '-')}: {getattr(a, k)} is not allowed; at least 1")
-    if any(n < 1 for n in a.lights):
-        ap.error(f"--lights: {a.lights} not allowed; every count at least 1")
+    for k in ("lights", "glossy"):
+        if any(n < 1 for n in getattr(a, k)):
+            ap.error(f"--{k}: {getattr(a, k)} not allowed; every count at least 1")
     if a.one:
         scene, n = a.one
         r = measure(scene, None if n == "-" else int(n), a.res, a.spp, a.repeats, a.ref_spp,
@@ -308,6 +318,7 @@ def main(argv=None) -> int:
     build_s = _build_time(100_000)
     print(f"tree build over 100,000 lights (synthetic): {build_s:.2f} s", flush=True)
     jobs = [("light_field", str(n)) for n in a.lights]
+    jobs += [("glossy_field", str(n)) for n in a.glossy]
     if a.few:
         jobs += [("veach_mis", "-"), ("cornell_box", "-")]
     results = []

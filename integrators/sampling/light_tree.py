@@ -82,7 +82,7 @@ import mitsuba as mi
 import numpy as np
 
 from ..common import is_jit, luminance
-from .light_selection import LightSelection, emitter_powers
+from .light_selection import CANDIDATES, LightSelection, emitter_powers
 
 BUCKETS = 12
 ORIENT_MIN = 64            # nodes of at most this many lights: SAH without the orientation
@@ -878,7 +878,7 @@ class ResampledTreeSelection(LightTreeSelection):
 
     SAMPLE_DIMS = 2
 
-    def __init__(self, scene, candidates: int = 4):
+    def __init__(self, scene, candidates: int = CANDIDATES):
         super().__init__(scene)
         self.mode = "ris"
         self.candidates = int(candidates)
