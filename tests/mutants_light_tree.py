@@ -65,4 +65,14 @@ MUTANTS = [
     ("power-samples-mixed-between-emitters", "integrators/sampling/light_selection.py",
      "mi.UInt32(np.repeat(idx, k).astype(np.uint32))",
      "mi.UInt32(np.tile(idx, k).astype(np.uint32))", ["test_light_selection.py", *TESTS]),
+    # stratified next-event estimation: the light samples of a vertex independent again
+    # whatever STRATIFY says (unbiased: the variance test must see the loss)
+    ("nee-light-samples-not-stratified", "integrators/sampling/vertex.py",
+     "        if not self.STRATIFY:", "        if True:", ["test_light_selection_variance.py"]),
+    # a rotated uniform clamped below one instead of wrapped: the later strata pile up on the
+    # last light of the cumulative pmf (biased)
+    ("stratum-not-wrapped", "integrators/sampling/light_selection.py",
+     "return dr.minimum(dr.select(uk >= 1.0, uk - 1.0, uk), ONE_MINUS_EPS)",
+     "return dr.minimum(uk, ONE_MINUS_EPS)",
+     ["test_light_selection_variance.py", "test_direct_mis.py", *TESTS]),
 ]

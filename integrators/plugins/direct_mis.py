@@ -35,7 +35,9 @@ class DirectMIS(IntegratorTemplate):
     """Direct illumination by light sampling and BSDF sampling combined with MIS."""
 
     PARAMS = (
-        Param("light_samples", "int", 1, min=0, max=MAX_COUNT, doc="N_l, light samples per camera sample."),
+        Param("light_samples", "int", 1, min=0, max=MAX_COUNT,
+              doc="N_l, light samples per camera sample (strata of one: stratified over the "
+                  "lights and their surfaces)."),
         Param("bsdf_samples", "int", 1, min=0, max=MAX_COUNT, doc="N_b, BSDF samples per camera sample."),
         *mis.PARAMS,
         light_selection.PARAM, light_selection.CANDIDATES_PARAM, HIDE_EMITTERS,

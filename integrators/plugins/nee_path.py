@@ -65,7 +65,9 @@ class NEEPath(IntegratorTemplate):
                   "down where a bounce would pass it)."),
         dataclasses.replace(mis.PARAMS[0], default="power"), *mis.PARAMS[1:],
         light_selection.PARAM, light_selection.CANDIDATES_PARAM,
-        Param("light_samples", "int", 1, min=0, max=MAX_COUNT, doc="Shadow rays per vertex (NEE splitting)."),
+        Param("light_samples", "int", 1, min=0, max=MAX_COUNT,
+              doc="Shadow rays per vertex (NEE splitting; strata of one sample: stratified "
+                  "over the lights and their surfaces)."),
         Param("split", "int", 1, min=1, max=MAX_COUNT, doc="Independent continuations from the first hit."),
         HIDE_EMITTERS,
     )

@@ -57,6 +57,7 @@ CANDIDATES_PARAM = Param("light_candidates", "int", CANDIDATES, min=1, max=64,
                          doc="light_selection=ris: lights drawn from the light tree per light "
                              "sample, one kept by resampling (1: the tree's own choice).")
 
+ONE_MINUS_EPS = 1.0 - 2.0 ** -24
 POWER_SAMPLES_JIT = 1 << 14
 POWER_SAMPLES_SCALAR = 256
 
@@ -200,6 +201,24 @@ def power_pmf(power: np.ndarray) -> np.ndarray:
     return power / total
 
 
+#: step of the R2 low-discrepancy sequence in 2-D: successive rotations of a light-point sample
+R2_STEP = (0.7548776662466927, 0.5698402909980532)
+
+
+def rotated(u, k, m):
+    """Stratum k of m of a uniform: u + k/m modulo 1 (a Cranley-Patterson rotation: uniform for
+    every k, the m together stratified); ``m`` may differ per lane."""
+    uk = u + mi.Float(k) * (1.0 / m)
+    return dr.minimum(dr.select(uk >= 1.0, uk - 1.0, uk), ONE_MINUS_EPS)
+
+
+def rotated_2d(s, k):
+    """Point k of a 2-D uniform: s + k times the R2 sequence's step, modulo 1 (uniform for every
+    k, successive k spread over the square as the R2 sequence is)."""
+    sk = mi.Point2f(s) + mi.Float(k) * mi.Vector2f(R2_STEP)
+    return dr.minimum(sk - dr.floor(sk), ONE_MINUS_EPS)
+
+
 def _no_direction_sample():
     """An empty direction sample (``dr.zeros`` cannot build one in scalar variants: its
     emitter pointer)."""
@@ -262,6 +281,13 @@ class LightSelection:
     def sample_1d(self, sampler, active=True):
         """The ``sample1`` of a light choice from ``sampler`` (:attr:`SAMPLE_DIMS` numbers)."""
         return sampler.next_2d(active) if self.SAMPLE_DIMS == 2 else sampler.next_1d(active)
+
+    def stratum(self, sample1, k, m):
+        """The choice sample of light sample k of m at one vertex, from the first one's
+        ``sample1``: rotated by k/m, so each is uniform (every light sample is distributed as
+        one alone, which is all the multi-sample estimator needs to stay unbiased) and the m
+        together are stratified over the selection's cumulative pmf."""
+        return rotated(sample1, k, m)
 
     def choose(self, si, sample1, active=True):
         """Pick the emitter of a light sample at ``si``: (EmitterPtr, p(j | si), norm).
@@ -357,7 +383,6 @@ class SelectionCache:
 # ---------------------------------------------------------------------------------------------
 # adaptive selection: per shading point, proportional to an estimate of each light's irradiance
 DEFENSIVE = 0.05
-ONE_MINUS_EPS = 1.0 - 2.0 ** -24
 
 
 def _light_geometry(scene, emitters, power):

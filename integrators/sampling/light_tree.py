@@ -82,7 +82,8 @@ import mitsuba as mi
 import numpy as np
 
 from ..common import is_jit, luminance
-from .light_selection import CANDIDATES, LightSelection, emitter_powers
+from .light_selection import CANDIDATES, ONE_MINUS_EPS, LightSelection, emitter_powers, \
+    rotated, rotated_2d
 
 BUCKETS = 12
 ORIENT_MIN = 64            # nodes of at most this many lights: SAH without the orientation
@@ -91,9 +92,6 @@ MEDIAN_DEPTH = 40          # deeper nodes are split at the median count
 MAX_DEPTH = 64             # bit trail: two 32-bit words
 COS_E_SLACK = 1e-3         # the emission-cone test keeps lights up to this much beyond it
 RECEIVER_FLOOR = 1e-3      # smallest receiver factor (shading normals may see past the horizon)
-ONE_MINUS_EPS = 1.0 - 2.0 ** -24
-#: step of the R2 low-discrepancy sequence: rotates the light-point sample of each ris candidate
-R2_STEP = (0.7548776662466927, 0.5698402909980532)
 LEAF = np.uint32(0x80000000)
 
 
@@ -413,13 +411,6 @@ def _down(x):
 
 def _up(x):
     return np.nextafter(x.astype(np.float32), np.float32(np.inf))
-
-
-def rotated(u, k, m):
-    """Candidate k of m's uniform: u + k/m modulo 1 (a Cranley-Patterson rotation: uniform for
-    every k, the m together stratified)."""
-    uk = u + mi.Float(k) * (1.0 / m)
-    return dr.minimum(dr.select(uk >= 1.0, uk - 1.0, uk), ONE_MINUS_EPS)
 
 
 def reservoir_step(w, w_sum, v):
@@ -919,9 +910,7 @@ class ResampledTreeSelection(LightTreeSelection):
             emitter, sel, _ = self._choose(si, rotated(u, k, m), active, self._traverse)
             ok = active & (sel > 0)
             if is_jit() or ok:
-                sk = s2 + mi.Float(k) * mi.Vector2f(R2_STEP)
-                sk = dr.minimum(sk - dr.floor(sk), ONE_MINUS_EPS)
-                ds_k, we_k = emitter.sample_direction(si, sk, ok)
+                ds_k, we_k = emitter.sample_direction(si, rotated_2d(s2, k), ok)
                 ds_k.emitter = emitter
                 f_k = bsdf.eval(ctx, si, si.to_local(ds_k.d), ok)
                 h = dr.select(ok, dr.maximum(luminance(f_k * we_k), 0.0), 0.0)
@@ -936,6 +925,13 @@ class ResampledTreeSelection(LightTreeSelection):
         ds.pdf = ds.pdf * sel_y
         weight = dr.select(ok, weight * (w_sum / (m * dr.select(ok, h_y, 1.0))), 0.0)
         return ds, weight, None
+
+    def stratum(self, sample1, k, m):
+        """Light sample k of m at a vertex: its candidates' uniform rotated by k / (m M), so the
+        m M candidates of the m samples fall in distinct strata (by k/m, sample k would draw
+        sample 0's candidate lights again when m = M), the reservoir's by k/m."""
+        return mi.Point2f(rotated(sample1[0], k, m * self.candidates),
+                          rotated(sample1[1], k, m))
 
     def choose(self, si, sample1, active=True):
         emitter, pmf, _, _ = self.weighted_choice(si, sample1, active)

@@ -9,6 +9,10 @@ At a vertex x with throughput beta, a path-tracing estimator with light sampling
        1/N_l sum_j w_l(omega_j) f(omega_j) L_e G / (p(k_j) p_{k_j}(x_j)),
 
    :meth:`VertexEstimator.light_estimate` (:meth:`light_sample` + :meth:`light_weight`).
+   The N_l samples are strata of one (:meth:`VertexEstimator.stratum`: the light choice's
+   uniform rotated by j/N_l, the point sample by j steps of the R2 sequence), so they spread
+   over the lights and over each light's surface; each is still distributed as a single light
+   sample, which is all the multi-sample MIS estimator needs to stay unbiased.
 2. **A BSDF sample** omega_b with f cos / p_b: it continues the path (``nee_path``, ``mis3``)
    or only looks for emission (``direct_mis``).  With one light sample, the BSDF is evaluated for
    the light direction and sampled in one call (``eval_pdf_sample``, as Mitsuba's ``path`` does):
@@ -33,6 +37,7 @@ import drjit as dr
 import mitsuba as mi
 
 from ..common import bsdf_at, bsdf_flags, depth_limit, emitted, is_jit, lnot, safe_div
+from .light_selection import rotated_2d
 from .mis import Heuristic
 from .roulette import Roulette
 
@@ -54,6 +59,7 @@ class LightSample(NamedTuple):
     weight: "mi.Spectrum"        # L_e G / (p(k) p_k), no visibility
     visible: "mi.Bool"           # lanes whose sample is unoccluded and non-zero
     norm: object                 # the selection's normaliser at x (see light_selection)
+    samples: tuple = None        # (choice sample, point sample) it was drawn from
 
 
 def no_bsdf_sample():
@@ -78,15 +84,34 @@ class VertexEstimator:
 
     # ---- 1. light samples -----------------------------------------------------------------
     @staticmethod
-    def light_sample(scene, sel, sampler, si, active, bsdf=None, ctx=None) -> LightSample:
+    def light_sample(scene, sel, sampler, si, active, bsdf=None, ctx=None,
+                     samples=None) -> LightSample:
         """One light sample at ``si`` with its shadow ray (``bsdf`` and ``ctx``: the BSDF the
         sample will be evaluated with, for a selection that resamples by the unshadowed
-        contribution)."""
-        s1, s2 = sel.sample_1d(sampler, active), sampler.next_2d(active)
+        contribution; ``samples``: its (choice, point) uniforms, drawn from ``sampler`` if
+        not given)."""
+        if samples is None:
+            samples = (sel.sample_1d(sampler, active), sampler.next_2d(active))
+        s1, s2 = samples
         ds, em_weight, norm = sel.sample_direction(si, s1, s2, active, bsdf=bsdf, ctx=ctx)
         act = active & dr.any(em_weight != 0)
         act &= lnot(scene.ray_test(si.spawn_ray_to(ds.p), act))
-        return LightSample(ds, em_weight, act, norm)
+        return LightSample(ds, em_weight, act, norm, samples)
+
+    #: whether the light samples of one vertex are strata of the first one's uniforms
+    #: (:meth:`stratum`; False: independent draws from the sampler, for comparison)
+    STRATIFY = True
+
+    def stratum(self, sel, sampler, samples, k, m, active=True):
+        """The uniforms of light sample k of m at a vertex from those of sample 0: the choice
+        sample rotated by the selection (:meth:`LightSelection.stratum`), the point sample by k
+        steps of the R2 sequence.  Each sample is still distributed as a single one (so the
+        m-sample MIS estimator stays unbiased), and the m together are stratified over the
+        lights and over each light's surface: **stratified next-event estimation** at no
+        cost, where m independent samples would often pick the same light twice."""
+        if not self.STRATIFY:
+            return sel.sample_1d(sampler, active), sampler.next_2d(active)
+        return sel.stratum(samples[0], k, m), rotated_2d(samples[1], k)
 
     def light_weight(self, ls: LightSample, q_bsdf: Sequence, light_scale=None):
         """MIS weight of a light sample against the BSDF techniques' effective densities
@@ -103,15 +128,14 @@ class VertexEstimator:
     def light_estimate(self, scene, sel, sampler, ctx, si, bsdf, active):
         """1/N_l sum over N_l light samples (densities against N_b BSDF samples)."""
         L = mi.Spectrum(0.0)
+        first = (sel.sample_1d(sampler, active), sampler.next_2d(active))
         j = mi.UInt32(0)
         while dr.hint(j < self.n_l, label="light samples"):
             if is_jit() or active:
-                ls = self.light_sample(scene, sel, sampler, si, active, bsdf, ctx)
+                ls = self.light_sample(scene, sel, sampler, si, active, bsdf, ctx,
+                                       self.stratum(sel, sampler, first, j, self.n_l, active))
                 f, pdf_b = bsdf.eval_pdf(ctx, si, si.to_local(ls.ds.d), ls.visible)
                 L += self.light_term(ls, f, [self.n_b * pdf_b])
-            else:
-                sel.sample_1d(sampler)
-                sampler.next_2d()
             j += 1
         return L / self.n_l
 
@@ -150,7 +174,8 @@ class VertexEstimator:
                 L = self.light_term(ls, f_l, [self.n_b * pdf_l])
             else:
                 L = safe_div(self.light_term(ls, f_l, [self.n_b * pdf_l], scale), scale)
-                L += self.extra_light_samples(scene, sel, sampler, ctx, si, bsdf, smooth, scale)
+                L += self.extra_light_samples(scene, sel, sampler, ctx, si, bsdf, smooth,
+                                              scale, ls.samples)
             return Direct(L, bs, weight, ls.norm, ls, f_l, pdf_l, scale)
         L = mi.Spectrum(0.0)
         if n_l > 0:
@@ -162,18 +187,20 @@ class VertexEstimator:
         return Direct(L, bs, weight, None, None, None, None)
 
     @dr.syntax
-    def extra_light_samples(self, scene, sel, sampler, ctx, si, bsdf, active, m):
+    def extra_light_samples(self, scene, sel, sampler, ctx, si, bsdf, active, m, first):
         """The light samples beyond the first where the lane's light-sample count ``m`` (an
-        integer-valued Float, see :meth:`direct`) exceeds one: m - 1 more, each at effective
-        density m p_l and divided by m (nothing where m <= 1)."""
+        integer-valued Float, see :meth:`direct`) exceeds one: m - 1 more, strata 1..m-1 of
+        the first one's uniforms ``first`` (:meth:`stratum`), each at effective density m p_l
+        and divided by m (nothing where m <= 1)."""
         L = mi.Spectrum(0.0)
         if dr.hint(not self.allocates, mode="scalar"):
             return L
         more = active & (m > 1.0)
-        count = dr.select(more, mi.UInt32(m) - 1, 0)
-        j = mi.UInt32(0)
+        count = dr.select(more, mi.UInt32(m), 1)
+        j = mi.UInt32(1)
         while dr.hint(more & (j < count), label="extra light samples"):
-            ls = self.light_sample(scene, sel, sampler, si, more, bsdf, ctx)
+            ls = self.light_sample(scene, sel, sampler, si, more, bsdf, ctx,
+                                   self.stratum(sel, sampler, first, j, m, more))
             f, pdf_b = bsdf.eval_pdf(ctx, si, si.to_local(ls.ds.d), ls.visible)
             L += safe_div(self.light_term(ls, f, [self.n_b * pdf_b], m), m)
             j += 1
