@@ -60,9 +60,12 @@ METHODS = {
     "bdpt": {"type": "bdpt"},
     "pssmlt": {"type": "pssmlt"},
     "pssmlt_bdpt": {"type": "pssmlt", "estimator": "bdpt"},
+    # the importance relative to the pixel's brightness (the default is the luminance)
+    "pssmlt_rel": {"type": "pssmlt", "importance": "relative"},
+    "pssmlt_bdpt_rel": {"type": "pssmlt", "estimator": "bdpt", "importance": "relative"},
 }
 #: the Metropolis methods, each with its relMSE ratio to path in the report
-MLT_METHODS = ("pssmlt", "pssmlt_bdpt")
+MLT_METHODS = ("pssmlt", "pssmlt_bdpt", "pssmlt_rel", "pssmlt_bdpt_rel")
 
 
 def relmse_map(x, ref):

@@ -75,4 +75,15 @@ MUTANTS = [
     ("pssmlt-bdpt-shared-stream", _P,
      "                sampler.substream(self.dims_cam, self.dims_light))",
      "                sampler.substream(0, self.dims_light))", _T),
+    # importance=relative: the chains' I relative, but b the bootstrap's mean luminance (the
+    # pilot built, the bootstrap's own I not recomputed): the image off by the ratio of the two
+    ("pssmlt-relative-b-of-luminance", _P,
+     "        lum_b = retarget(pix_b, rgb_b, bootstrap)",
+     "        retarget(pix_b, rgb_b, bootstrap)", _T),
+    # importance=relative: a splat's I divides by g at pixel 0, not at its own pixel (still a
+    # valid importance, but bdpt's splats then share one g: the relative weighting is lost;
+    # consistent, so only the pilot's test sees it)
+    ("pssmlt-relative-g-at-pixel-0", _P,
+     "            return importance(rgb) / dr.gather(mi.Float, self.pilot, pix)",
+     "            return importance(rgb) / dr.gather(mi.Float, self.pilot, pix * 0)", _T),
 ]

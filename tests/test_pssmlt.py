@@ -173,23 +173,33 @@ def test_bdpt_subpaths_read_disjoint_coordinates():
     assert sorted(read_c + read_l) == list(range(dims))
 
 
-@pytest.mark.parametrize("estimator,batches,seed", [("path", 40, 1000), ("bdpt", 24, 2000)])
-def test_bootstrap_b_is_unbiased(estimator, batches, seed):
+@pytest.mark.parametrize("estimator,batches,seed,relative",
+                         [("path", 40, 1000, False), ("bdpt", 24, 2000, False),
+                          ("path", 40, 3000, True)])
+def test_bootstrap_b_is_unbiased(estimator, batches, seed, relative):
     """H0: E[b] = the mean luminance of Mitsuba's path image (Welch t on ``batches``
     bootstrap estimates of 65,536 paths each against 10 path renders, alpha DEFAULT_ALPHA);
     power guard: relative standard error below 1 % (a 5 % bias gives |t| >= 5).  With the
-    bdpt estimator, I is the sum of every splat's luminance over a path."""
+    bdpt estimator, I is the sum of every splat's luminance over a path.  ``relative``: I is
+    the luminance over a fixed random per-pixel g (importance=relative with a given pilot),
+    so E[b] = the mean over pixels of path's luminance / g."""
     scene = cornell(16)
     integ = pssmlt(estimator=estimator, separate_emission=False)
     sensor = scene.sensors()[0]
     sel = integ.prepare(scene)
+    g = np.random.default_rng(seed).uniform(0.5, 2.0, 16 * 16).astype(np.float32)
+    if relative:
+        integ.pilot = mi.Float(g)
 
     def ev(s):
         return integ.estimate(scene, sensor, sel, s)
     b = np.array([P.start(ev, integ.dims, 256, 65536, seed=seed + k, extra=integ.extra).b
                   for k in range(batches)])
     ref = renders(scene, mi.load_dict({"type": "path", "max_depth": 5}), 10, 1024, seed // 20)
-    y = (ref @ np.array([0.212671, 0.715160, 0.072169])).mean(axis=(1, 2))
+    lum = ref @ np.array([0.212671, 0.715160, 0.072169])
+    if relative:
+        lum = lum / g.reshape(16, 16)
+    y = lum.mean(axis=(1, 2))
     count_check(DEFAULT_ALPHA)
     t, p = stats.ttest_ind(b, y, equal_var=False)
     se = np.sqrt(b.var(ddof=1) / b.size + y.var(ddof=1) / y.size) / y.mean()
@@ -224,13 +234,37 @@ def test_image_mean_matches_path(which, estimator):
                  bootstrap=131072, estimator=estimator)
 
 
-@pytest.mark.parametrize("estimator", ["path", "bdpt"])
-def test_blocks_match_path_small_image(estimator):
+@pytest.mark.parametrize("estimator,importance", [("path", "relative"), ("bdpt", "relative"),
+                                                  ("path", "luminance")])
+def test_blocks_match_path_small_image(estimator, importance):
     """H0: the same expected image as path per 2x2 block of an 8x8 image (Welch t per block
     and channel, Sidak, alpha DEFAULT_ALPHA): the film position of a path is its own pixel,
-    and (bdpt) a light vertex's splat the pixel it projects to.  Power guard: median relative
-    s.e. of a block below 3 %."""
-    _compare(cornell(8), 24, 512, 12, 2048, 2, 0.03, estimator=estimator)
+    and (bdpt) a light vertex's splat the pixel it projects to; with either importance (the
+    default relative one and Kelemen's luminance).  Power guard: median relative s.e. of a
+    block below 3 %."""
+    _compare(cornell(8), 24, 512, 12, 2048, 2, 0.03, estimator=estimator,
+             importance=importance)
+
+
+def test_pilot_scale():
+    """importance=relative's pilot (P.pilot_scale): block means of the bootstrap's
+    luminance per pixel, floored at PILOT_FLOOR x the image mean; ones for a black image."""
+    w, h, n = 8, 4, 64 * 32
+    pix = mi.UInt32(np.arange(n, dtype=np.uint32) % (w * h))
+    lum_px = np.where(np.arange(w * h) < w * h // 2, 1.0, 0.0)     # top half lit
+    rgb = mi.Color3f(*[mi.Float(np.tile(lum_px, n // (w * h)).astype(np.float32))] * 3)
+    g = P.pilot_scale(pix, rgb, w, h, n)
+    side = int(np.ceil(np.sqrt(P.PILOT_SAMPLES * w * h / n)))
+    assert side == 4
+    # the image (w h / n per splat: mean 1 on the lit half), in 4x4 blocks, floored at 0.1 x 0.5
+    img = lum_px * (w * h / n) * (n // (w * h))
+    blocks = img.reshape(h, w).reshape(1, 4, 2, 4).mean(axis=(1, 3))
+    expected = np.sqrt(np.repeat(np.repeat(blocks, 4, 0), 4, 1).ravel() ** 2
+                       + (P.PILOT_FLOOR * img.mean()) ** 2)
+    np.testing.assert_allclose(g, expected, rtol=1e-6)
+    assert np.all(g > 0)
+    np.testing.assert_array_equal(P.pilot_scale(pix, dr.zeros(mi.Color3f, n), w, h, n),
+                                  np.ones(w * h))
 
 
 @pytest.mark.slow
@@ -332,3 +366,21 @@ def test_bdpt_estimator_renders_with_its_defaults():
     img = np.array(mi.render(scene, spp=4))
     assert img.shape == (8, 8, 3) and np.all(np.isfinite(img)) and img.mean() > 0
     assert scene.integrator().stats()["chains"] == P.BDPT_CHAINS
+
+
+@pytest.mark.parametrize("estimator", ["path", "bdpt"])
+def test_relative_importance_is_luminance_over_g(estimator):
+    """importance=relative: a path's I is the sum over its splats of luminance / g at the
+    splat's own pixel (g a given pilot), so that the mutations spread for a relative error."""
+    scene = cornell(8)
+    integ = pssmlt(estimator=estimator)
+    sel = integ.prepare(scene)
+    g = np.random.default_rng(5).uniform(0.5, 2.0, 64).astype(np.float32)
+    integ.pilot = mi.Float(g)
+    smp = ps.primary_sampler(None, integ.dims, dr.arange(mi.UInt32, 4096), mi.UInt32(3),
+                             extra=integ.extra)
+    pix, rgb, lum = integ.estimate(scene, scene.sensors()[0], sel, smp)
+    pix, rgb = (pix, rgb) if isinstance(pix, list) else ([pix], [rgb])
+    expected = sum(np.array(P.importance(r_k)) / g[np.array(p_k)] for p_k, r_k in zip(pix, rgb))
+    assert np.count_nonzero(expected) > 100
+    np.testing.assert_allclose(np.array(lum), expected, rtol=1e-4, atol=1e-7)
