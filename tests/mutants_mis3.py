@@ -3,8 +3,8 @@
 MUTANTS = [
     # one light sample too many where a vertex takes more than one: biased high
     ("allocation-one-extra-sample", "integrators/sampling/vertex.py",
-     "count = dr.select(more, mi.UInt32(m) - 1, 0)",
-     "count = dr.select(more, mi.UInt32(m), 0)", ["test_mis3_learned.py"]),
+     "count = dr.select(more, mi.UInt32(m), 1)",
+     "count = dr.select(more, mi.UInt32(m) + 1, 1)", ["test_mis3_learned.py"]),
     # the emission found by the BSDF sample weighted as if one light sample was taken
     ("allocation-emission-weight-count-1", "integrators/sampling/vertex.py",
      "scale = d.light_scale if learn else None",

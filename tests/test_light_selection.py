@@ -97,10 +97,14 @@ def test_pmf_lookup_by_emitter_pointer_matches_table():
     # and sampling draws each emitter with that probability
     n = 1 << 20
     u = (dr.arange(mi.Float, n) + 0.5) / n
-    _, p = sel.sample(u)
-    idx, _ = sel.distr.sample_pmf(u)
-    counts = np.bincount(np.array(idx), minlength=len(sel.pmf_np)) / n
+    em, p = sel.sample(u)
+    ids = np.array(dr.reinterpret_array(mi.UInt32, em))
+    index_of = {int(i): j for j, i in enumerate(np.array(dr.reinterpret_array(mi.UInt32, ptrs)))}
+    idx = np.array([index_of[int(i)] for i in ids])
+    counts = np.bincount(idx, minlength=len(sel.pmf_np)) / n
     assert np.allclose(counts, sel.pmf_np, atol=2.0 / n + 1e-6)
+    # the reported probability is the drawn emitter's
+    assert np.allclose(np.array(p), sel.pmf_np[idx], rtol=1e-6)
 
 
 def test_all_zero_power_falls_back_to_uniform():
@@ -108,3 +112,23 @@ def test_all_zero_power_falls_back_to_uniform():
          "a": {"type": "sphere", "emitter": {"type": "area", "radiance": 0.0}},
          "b": {"type": "point", "position": [0, 0, 3], "intensity": 0.0}}
     assert np.allclose(selection_pmf(mi.load_dict(d), "power"), 0.5)
+
+
+def test_cumulative_order_is_spatial_and_independent_of_mitsubas_order():
+    """The cumulative pmf's order (light_selection.spatial_order) depends on the emitters and
+    their positions, not on the order Mitsuba lists them in (which changes between processes:
+    plugins load in parallel), so a given uniform picks the same light in every process;
+    emitters without a position come first."""
+    from integrators.sampling.light_selection import spatial_order
+    d = {"type": "scene", "env": {"type": "constant", "radiance": 0.1}}
+    for k in range(12):
+        d[f"s{k}"] = {"type": "sphere", "center": [float(k % 4), float(k // 4), 2.0],
+                      "radius": 0.1, "emitter": {"type": "area", "radiance": 1.0 + k}}
+    scene = mi.load_dict(d)
+    ems = list(scene.emitters())
+    pmf = np.arange(1.0, len(ems) + 1.0)
+    first = [ems[j] for j in spatial_order(ems, pmf)]
+    perm = np.random.default_rng(1).permutation(len(ems))
+    again = [ems[perm[j]] for j in spatial_order([ems[i] for i in perm], pmf[perm])]
+    assert [e.ptr for e in first] == [e.ptr for e in again]
+    assert first[0].get_shape() is None          # the environment first

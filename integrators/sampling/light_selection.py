@@ -26,6 +26,11 @@ contribute nothing, so this stays unbiased); if every emitter has zero power, se
 to uniform.  The selection probability enters both the estimator (division by p(j)) and the MIS
 densities (``pdf_direction`` returns p(j) * p_j(omega)), so it can never bias the result.
 
+The cumulative pmf that a choice inverts runs along a Morton curve of the lights
+(:func:`spatial_order`), not in Mitsuba's emitter order, which changes between processes: the
+same uniform picks the same light in every process, and the strata of several light samples
+at a vertex are regions of space.
+
 Selection tables are per scene, built once and cached by the integrator (``for_scene``).  In JIT
 variants an emitter pointer is mapped to its index through its registry id
 (``dr.reinterpret_array(UInt32, ptr)``), so looking up p(j) for an emitter hit by a BSDF ray is a
@@ -219,6 +224,33 @@ def rotated_2d(s, k):
     return dr.minimum(sk - dr.floor(sk), ONE_MINUS_EPS)
 
 
+def spatial_order(emitters, pmf: np.ndarray) -> np.ndarray:
+    """The order of the cumulative pmf that a light choice inverts: emitters without a
+    position (infinite ones) first, by probability, then the others along a Morton curve of
+    their bounding boxes' centres (ties by probability).  Mitsuba's ``scene.emitters()`` order
+    changes between processes (plugins are instantiated in parallel); a fixed spatial order
+    makes the choice for a given uniform the same in every process, and the strata of
+    several light samples (:meth:`LightSelection.stratum`) regions of space, which is where
+    stratifying pays."""
+    n = len(emitters)
+    centres = np.zeros((n, 3))
+    placed = np.zeros(n, bool)
+    for j, e in enumerate(emitters):
+        b = e.bbox()
+        if b.valid():
+            centres[j] = np.array(b.center(), dtype=np.float64).ravel()[:3]
+            placed[j] = True
+    code = np.zeros(n, np.int64)
+    if placed.any():
+        lo, hi = centres[placed].min(0), centres[placed].max(0)
+        q = np.floor((centres - lo) / np.maximum(hi - lo, 1e-30) * 1023.0).clip(0, 1023)
+        q = q.astype(np.int64)
+        for bit in range(10):
+            for axis in range(3):
+                code |= ((q[:, axis] >> bit) & 1) << (3 * bit + axis)
+    return np.lexsort((-pmf, code, placed.astype(np.int64)))
+
+
 def _no_direction_sample():
     """An empty direction sample (``dr.zeros`` cannot build one in scalar variants: its
     emitter pointer)."""
@@ -243,8 +275,12 @@ class LightSelection:
             warnings.warn("scene has no emitters: light sampling is disabled and the image "
                           "will be black", RuntimeWarning, stacklevel=3)
             return
-        self.distr = mi.DiscreteDistribution(self.pmf_np.astype(np.float32))
+        #: slot k of the cumulative pmf holds emitter order[k] (:func:`spatial_order`)
+        self.order = spatial_order(self.emitters, self.pmf_np)
+        self.distr = mi.DiscreteDistribution(self.pmf_np[self.order].astype(np.float32))
         if is_jit():
+            self.order_dr = mi.UInt32(self.order.astype(np.uint32))
+            dr.make_opaque(self.order_dr)
             self.emitters_dr = scene.emitters_dr()
             ids = np.array(dr.reinterpret_array(mi.UInt32, self.emitters_dr), dtype=np.int64)
             table = np.zeros(int(ids.max()) + 1, dtype=np.float32)
@@ -278,6 +314,12 @@ class LightSelection:
             return dr.gather(mi.EmitterPtr, self.emitters_dr, idx, active)
         return self.emitters[int(idx)]
 
+    def _slot_emitter(self, slot, active=True):
+        """Index of the emitter in slot ``slot`` of the cumulative pmf."""
+        if is_jit():
+            return dr.gather(mi.UInt32, self.order_dr, slot, active)
+        return int(self.order[int(slot)])
+
     def sample_1d(self, sampler, active=True):
         """The ``sample1`` of a light choice from ``sampler`` (:attr:`SAMPLE_DIMS` numbers)."""
         return sampler.next_2d(active) if self.SAMPLE_DIMS == 2 else sampler.next_1d(active)
@@ -305,11 +347,11 @@ class LightSelection:
     def sample(self, sample1, active=True):
         """Pick an emitter: returns (EmitterPtr, selection probability)."""
         if self.mode == "uniform":  # direct index, no search
-            idx = dr.minimum(mi.UInt32(sample1 * self.count), self.count - 1)
+            slot = dr.minimum(mi.UInt32(sample1 * self.count), self.count - 1)
             pmf = mi.Float(1.0 / self.count)
         else:
-            idx, pmf = self.distr.sample_pmf(sample1, active)
-        return self._emitter(idx, active), pmf
+            slot, pmf = self.distr.sample_pmf(sample1, active)
+        return self._emitter(self._slot_emitter(slot, active), active), pmf
 
     def sample_direction(self, si, sample1, sample2, active=True, bsdf=None, ctx=None):
         """Light sample in solid-angle form, selection included.
@@ -572,7 +614,8 @@ class AdaptiveLightSelection(LightSelection):
         use_power = sample1 < DEFENSIVE
         u = dr.select(use_power, sample1 / DEFENSIVE, (sample1 - DEFENSIVE) / (1.0 - DEFENSIVE))
         u = dr.minimum(u, ONE_MINUS_EPS)
-        idx_p, _ = self.distr.sample_pmf(u, active)
+        slot_p, _ = self.distr.sample_pmf(u, active)
+        idx_p = self._slot_emitter(slot_p, active)
         idx_a, e_a, e_p, total = self._scan(si, u, idx_p)
         use_power |= total <= 0
         idx = dr.select(use_power, idx_p, idx_a)
