@@ -78,12 +78,21 @@ MUTANTS = [
     # importance=relative: the chains' I relative, but b the bootstrap's mean luminance (the
     # pilot built, the bootstrap's own I not recomputed): the image off by the ratio of the two
     ("pssmlt-relative-b-of-luminance", _P,
-     "        lum_b = retarget(pix_b, rgb_b, bootstrap)",
-     "        retarget(pix_b, rgb_b, bootstrap)", _T),
+     "        lum_b = retarget(pix_b, rgb_b, bootstrap, lum_b)",
+     "        retarget(pix_b, rgb_b, bootstrap, lum_b)", _T),
     # importance=relative: a splat's I divides by g at pixel 0, not at its own pixel (still a
     # valid importance, but bdpt's splats then share one g: the relative weighting is lost;
     # consistent, so only the pilot's test sees it)
     ("pssmlt-relative-g-at-pixel-0", _P,
      "            return importance(rgb) / dr.gather(mi.Float, self.pilot, pix)",
      "            return importance(rgb) / dr.gather(mi.Float, self.pilot, pix * 0)", _T),
+    # a pass's partial step starts at a literal chain offset: the step is compiled again for
+    # every offset (a new kernel each pass; the image is the same)
+    ("pssmlt-offset-literal", _P,
+     "dr.opaque(mi.UInt32, st.offset)", "st.offset", _T),
+    # importance_cap: the bootstrap's I capped (b their mean) but the chains' I not: the
+    # image too dark where a path's I passes the cap
+    ("pssmlt-cap-only-in-bootstrap", _P,
+     "            lum = dr.minimum(lum, self.cap)\n        return pix, rgb, lum",
+     "            lum = lum\n        return pix, rgb, lum", _T),
 ]

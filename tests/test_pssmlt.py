@@ -234,16 +234,20 @@ def test_image_mean_matches_path(which, estimator):
                  bootstrap=131072, estimator=estimator)
 
 
-@pytest.mark.parametrize("estimator,importance", [("path", "relative"), ("bdpt", "relative"),
-                                                  ("path", "luminance")])
-def test_blocks_match_path_small_image(estimator, importance):
+@pytest.mark.parametrize("estimator,importance,cap",
+                         [("path", "relative", None), ("bdpt", "relative", None),
+                          ("path", "luminance", None), ("path", "luminance", 2.0),
+                          ("bdpt", "luminance", None)])
+def test_blocks_match_path_small_image(estimator, importance, cap):
     """H0: the same expected image as path per 2x2 block of an 8x8 image (Welch t per block
     and channel, Sidak, alpha DEFAULT_ALPHA): the film position of a path is its own pixel,
-    and (bdpt) a light vertex's splat the pixel it projects to; with either importance (the
-    default relative one and Kelemen's luminance).  Power guard: median relative s.e. of a
-    block below 3 %."""
+    and (bdpt) a light vertex's splat the pixel it projects to; with either importance
+    (relative and Kelemen's luminance) and with a cap on I (bdpt's default 8, and 2 with
+    the path estimator: most directly lit paths are then capped).  Power guard: median
+    relative s.e. of a block below 3 %."""
+    kw = {} if cap is None else {"importance_cap": cap}
     _compare(cornell(8), 24, 512, 12, 2048, 2, 0.03, estimator=estimator,
-             importance=importance)
+             importance=importance, **kw)
 
 
 def test_pilot_scale():
@@ -384,3 +388,50 @@ def test_relative_importance_is_luminance_over_g(estimator):
     expected = sum(np.array(P.importance(r_k)) / g[np.array(p_k)] for p_k, r_k in zip(pix, rgb))
     assert np.count_nonzero(expected) > 100
     np.testing.assert_allclose(np.array(lum), expected, rtol=1e-4, atol=1e-7)
+
+
+@pytest.mark.parametrize("estimator", ["path", "bdpt"])
+def test_passes_reuse_the_compiled_kernels(estimator):
+    """Passes that continue the chains compile nothing new: each pass's partial step starts at
+    another chain (192 mutations per pass over 1024 chains: offsets 0, 192, 384, ...) and b
+    changes with every pass's large steps, and neither may be a literal in a kernel (a
+    literal offset recompiled the whole step, about 1.3 s a pass with the bdpt estimator on
+    a 64 x 64 glass shade: most of a short render's budget)."""
+    scene = cornell(8)
+    integ = mi.load_dict({"type": "pssmlt", "max_depth": 5, "chains": 1024, "bootstrap": 4096,
+                          "estimator": estimator})
+    dr.set_flag(dr.JitFlag.KernelHistory, True)
+    try:
+        dr.kernel_history()
+        seen, new = set(), []
+        for s in range(5):
+            mi.render(scene, integrator=integ, spp=3, seed=s)
+            hashes = {e["hash"] for e in dr.kernel_history() if e["type"] == dr.KernelType.JIT}
+            new.append(len(hashes - seen))
+            seen |= hashes
+    finally:
+        dr.set_flag(dr.JitFlag.KernelHistory, False)
+    assert integ.stats()["mutations"] == 5 * 3 * 64
+    assert new[0] > 0 and new[2:] == [0, 0, 0], new
+
+
+def test_importance_cap():
+    """importance_cap: 8 by default with the bdpt estimator, none with path, a given value
+    kept; the bootstrap sets the cap to that multiple of its mean I and caps its own I (so b
+    is the mean of the capped I), and every chain's I stays at most the cap."""
+    assert pssmlt(estimator="bdpt").importance_cap == P.BDPT_IMPORTANCE_CAP
+    assert pssmlt().importance_cap == 0.0
+    assert pssmlt(estimator="bdpt", importance_cap=3.0).importance_cap == 3.0
+    integ = pssmlt(importance_cap=2.0)
+    lum = np.random.default_rng(2).exponential(1.0, 4096).astype(np.float32) ** 3
+    out = np.array(integ.retarget(8, 8)(None, None, lum.size, mi.Float(lum)))
+    cap = 2.0 * lum.astype(np.float64).mean()
+    assert float(integ.cap[0]) == pytest.approx(cap, rel=1e-5)
+    assert (lum > cap).sum() > 100
+    np.testing.assert_allclose(out, np.minimum(lum, cap), rtol=1e-6)
+    scene = cornell(8)
+    mi.render(scene, integrator=integ, spp=16, seed=1)
+    chains = np.array(integ.state.lum)
+    assert integ.stats()["importance_cap"] == 2.0
+    assert chains.max() <= float(integ.cap[0]) * (1 + 1e-6)
+    assert (chains == chains.max()).sum() > 10     # the cap bites on the Cornell box
