@@ -329,8 +329,10 @@ class PSSMLT(IntegratorTemplate):
         return lum
 
     def retarget(self, w: int, h: int):
-        """For :func:`start`: the bootstrap's splats -> their relative I, the pilot built from
-        them first (None with importance=luminance)."""
+        """For :func:`start`: the bootstrap's splats and I -> their I under this run's
+        importance: relative (the pilot built from them first) and/or capped at
+        ``importance_cap`` x their mean (the cap kept for the chains); None with
+        importance=luminance and no cap."""
         if self.importance != "relative" and not self.importance_cap > 0:
             return None
 
