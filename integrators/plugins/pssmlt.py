@@ -336,7 +336,7 @@ class PSSMLT(IntegratorTemplate):
         if self.importance != "relative" and not self.importance_cap > 0:
             return None
 
-        def relative(pix, rgb, n, lum):
+        def target(pix, rgb, n, lum):
             if self.importance == "relative":
                 self.pilot = mi.Float(pilot_scale(pix, rgb, w, h, n))
                 lum = self.relative_importance(pix, rgb)
@@ -346,7 +346,7 @@ class PSSMLT(IntegratorTemplate):
                 if self.cap is not None:
                     lum = dr.minimum(lum, self.cap)
             return lum
-        return relative
+        return target
 
     def bdpt_estimator(self, scene, sensor):
         """The ``bdpt`` integrator whose strategies the chains drive (same max_depth,
