@@ -58,10 +58,10 @@ METHODS = {
     "path": {"type": "path"},
     "nee_path": {"type": "nee_path"},
     "bdpt": {"type": "bdpt"},
-    "pssmlt": {"type": "pssmlt"},
+    "pssmlt": {"type": "pssmlt", "estimator": "path"},
     "pssmlt_bdpt": {"type": "pssmlt", "estimator": "bdpt"},
     # the importance relative to the pixel's brightness (the default is the luminance)
-    "pssmlt_rel": {"type": "pssmlt", "importance": "relative"},
+    "pssmlt_rel": {"type": "pssmlt", "estimator": "path", "importance": "relative"},
     "pssmlt_bdpt_rel": {"type": "pssmlt", "estimator": "bdpt", "importance": "relative"},
 }
 #: the Metropolis methods, each with its relMSE ratio to path in the report
@@ -176,7 +176,7 @@ class Bench:
     def startup(self, name, scene, ref):
         mi = self.mi
         integ = mi.load_dict({"type": "pssmlt", "max_depth": self.args.max_depth,
-                              "continue_chains": False})
+                              "estimator": "path", "continue_chains": False})
         mi.render(scene, integrator=integ, spp=1, seed=999_999)
         out = {}
         for m in self.args.startup_spp:

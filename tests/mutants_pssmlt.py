@@ -95,4 +95,8 @@ MUTANTS = [
     ("pssmlt-cap-only-in-bootstrap", _P,
      "            lum = dr.minimum(lum, self.cap)\n        return pix, rgb, lum",
      "            lum = lum\n        return pix, rgb, lum", _T),
+    # estimator=auto takes bdpt without asking bdpt whether it renders the scene
+    ("pssmlt-auto-skips-scene-check", _P,
+     "                self.bdpt_estimator(scene, sensor)\n                choice, why = \"bdpt\"",
+     "                choice, why = \"bdpt\"", _T),
 ]

@@ -59,7 +59,7 @@ def glass_shade(res=16):
 
 def pssmlt(**kw):
     return mi.load_dict({"type": "pssmlt", "max_depth": 5, "chains": 4096, "bootstrap": 16384,
-                         "continue_chains": False, **kw})
+                         "continue_chains": False, "estimator": "path", **kw})
 
 
 def renders(scene, integ, n, spp, seed0):
@@ -317,7 +317,8 @@ def test_progressive_render_uses_one_run():
     from integrators.app import progressive
     d = mi.cornell_box()
     d["sensor"]["film"].update(width=8, height=8, pixel_format="rgb", rfilter={"type": "box"})
-    d["integrator"] = {"type": "pssmlt", "max_depth": 5, "chains": 1024, "bootstrap": 4096}
+    d["integrator"] = {"type": "pssmlt", "max_depth": 5, "chains": 1024, "bootstrap": 4096,
+                       "estimator": "path"}
     scene = mi.load_dict(d)
     acc = progressive.render(scene, spp=64, seed=3)
     s = scene.integrator().stats()
@@ -341,6 +342,38 @@ def test_bdpt_estimator_needs_a_finite_depth_in_one_line():
         mi.load_dict({"type": "pssmlt", "estimator": "bdpt"})
     msg = str(e.value)
     assert "'max_depth' = -1" in msg and "estimator 'bdpt'" in msg and "0 to 64" in msg
+
+
+def test_auto_estimator_is_bdpt_where_depth_and_scene_allow_it():
+    """estimator=auto (the default): bdpt, with its chains and cap, for a finite max_depth on
+    a scene bdpt renders; path for max_depth -1 and for a scene bdpt refuses (a directional
+    light), with the reason in the run notes; the chosen estimator's defaults follow it."""
+    def scene_with(integ, sun=False):
+        d = mi.cornell_box()
+        d["sensor"]["film"].update(width=8, height=8, pixel_format="rgb")
+        if sun:
+            d["sun"] = {"type": "directional", "direction": [0, -1, 0]}
+        d["integrator"] = integ
+        return mi.load_dict(d)
+    cases = [({"max_depth": 5}, False, "bdpt", "allow bdpt"),
+             ({}, False, "path", "max_depth -1"),
+             ({"max_depth": 5}, True, "path", "infinite, delta direction")]
+    for params, sun, expected, why in cases:
+        scene = scene_with({"type": "pssmlt", "bootstrap": 4096, **params}, sun)
+        img = np.array(mi.render(scene, spp=2))
+        integ = scene.integrator()
+        notes = integ.run_notes()
+        assert notes["estimator"] == expected and why in notes["estimator_auto"], notes
+        assert np.all(np.isfinite(img)) and img.mean() > 0
+        stats = integ.stats()
+        assert stats["chains"] == (P.BDPT_CHAINS if expected == "bdpt" else P.PATH_CHAINS)
+        assert integ.params["chains"] == stats["chains"]     # what the run record shows
+        assert integ.importance_cap == (P.BDPT_IMPORTANCE_CAP if expected == "bdpt" else 0)
+        del scene, integ
+    gc.collect()
+    # an explicit estimator is kept as given (no notes on a choice)
+    integ = pssmlt()
+    assert integ.run_notes() == {"estimator": "path"}
 
 
 def test_bdpt_estimator_refuses_what_bdpt_refuses_in_one_line():
