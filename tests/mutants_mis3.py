@@ -14,4 +14,9 @@ MUTANTS = [
      "q_d = pi1 * dr.maximum(bsdf.pdf(ctx_d, si, wo, active), 0.0) if has_d else zero",
      "q_d = pi1 * bsdf.pdf(ctx_d, si, wo, active) if has_d else zero",
      ["test_mis3_continuation.py"]),
+    # the learned allocation's variance model back to M - mu^2 (negative wherever both
+    # techniques share the mean: every allocation then looked free of variance)
+    ("allocation-variance-minus-mean-squared", "integrators/plugins/mis3.py",
+     "var = second - mean_l ** 2 / c - (mean - mean_l) ** 2",
+     "var = second - mean ** 2", ["test_mis3_learned.py"]),
 ]

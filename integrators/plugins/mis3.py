@@ -60,8 +60,11 @@ With p(1) = p(2) = 0 (``p_light = 1``) the continuation is the BSDF's own sample
   heuristic the second moment of a vertex's direct-light estimate is
   M(p) = int (f L_e)^2 / (p p_l + p_b); each light sample or emission hit adds
   (f L_e)^2 / ((p p_l + p_b) Q0) for every candidate p (Q0 the density it was drawn with), so all
-  candidates are estimated from the same samples; between passes each region takes the
-  candidate minimising (M(p) - mean^2) (1 + 0.5 p) (a light sample costs about half a vertex),
+  candidates are estimated from the same samples, and so is each technique's share of the mean
+  (mu_l(p), mu_b(p)); between passes each region takes the candidate minimising the variance
+  V(p) = M(p) - mu_l^2 / max(p, 1) - mu_b^2 (:func:`allocation_variance`), plus 0.3 V(1)
+  for the rest of the path (``LEARN_REST_VAR``), times the cost 1 + 0.5 p (a light sample
+  costs about half a vertex),
   keeping p = 1 unless another candidate promises 20 % less, and p(3) = 1 until the region has
   64 recorded visits and 32 non-zero samples.  The candidates start at 0.05: the floor that
   keeps delta lights (which only light sampling reaches) and every other light reachable.
@@ -105,9 +108,14 @@ ONE = LEARNED_P.index(1.0)
 LIGHT_COST = 0.5
 #: the rest of the path in the objective (variance x cost of the pixel estimate, not only of
 #: this vertex's direct light): its cost in vertex units, and its variance as a multiple of the
-#: direct estimate's variance at p(3) = 1
+#: direct estimate's variance at p(3) = 1.  The per-vertex statistics do not see the rest of
+#: the path, so its variance is a stand-in: with the variance model of allocation_variance,
+#: 0 allocates up to 4 light samples wherever they lower the vertex's variance (veach_mis 1.45x
+#: `path`, but the Cornell box 0.68x and small_light 0.58x, whose noise is indirect or in the
+#: camera's view of the light), 1 allocates too little for veach_mis (0.82x); 0.3 keeps every
+#: experiment scene at 0.76x or more (geometric mean 1.08x; benchmarks/results/mis3/variance)
 LEARN_REST_COST = 1.0
-LEARN_REST_VAR = 0.0
+LEARN_REST_VAR = 0.3
 #: visits a region needs before its learned probability replaces the adaptive one
 LEARN_MIN_VISITS = 64
 #: non-zero light samples or emission hits a region needs before it leaves p(3) = 1
@@ -122,6 +130,31 @@ LEARN_FRACTION = 0.125
 LEARN_MARGIN = 0.8
 #: learning stops once a pass changes the decisions of less than this fraction of the visits
 LEARN_SETTLED = 0.05
+
+
+def allocation_variance(second, mean, mean_l, candidates=LEARNED_P):
+    r"""Variance of a vertex's direct-light estimate for each candidate allocation c, from the
+    statistics of :meth:`MIS3._learn` (per region: rows; per candidate: columns).
+
+    With the balance heuristic, c light samples (c <= 1: one, with probability c) and the BSDF
+    sample, the estimate is a sum of f / (c p_l + p_b) over the samples drawn, and
+
+        V(c) = M(c) - mu_l(c)^2 / max(c, 1) - mu_b(c)^2,
+
+    M(c) = int f^2 / (c p_l + p_b) (``second``), mu_l(c) = int f w_l (``mean_l``) and mu_b(c) =
+    mu - mu_l(c) the two techniques' shares of the mean mu (``mean``) (for c > 1 the light
+    part is the mean of c samples: its squared mean counts 1/c; for c <= 1 the light sample
+    and the BSDF sample are independent, whose cross term cancels).  Subtracting mu^2 instead
+    understates V by 2 mu_l mu_b + (1 - 1/c) mu_l^2, which is most of V once c > 1: every
+    allocation above one then looked free of variance and the cheapest of them won.  Clamped
+    at zero (the three sums are estimates), plus a floor of 1e-6 of the mean second moment so
+    that a region of zeros keeps its cost order."""
+    second = np.asarray(second, dtype=np.float64)
+    mean = np.asarray(mean, dtype=np.float64).reshape(-1, 1)
+    mean_l = np.asarray(mean_l, dtype=np.float64)
+    c = np.maximum(np.asarray(candidates, dtype=np.float64), 1.0)[None, :]
+    var = second - mean_l ** 2 / c - (mean - mean_l) ** 2
+    return np.maximum(var, 0.0) + 1e-6 * second.mean(axis=1, keepdims=True)
 
 
 def _prob(name, default, doc):
@@ -177,7 +210,7 @@ class MIS3(IntegratorTemplate):
     # ---- selection=learned: the light-sample probability per region ------------------------
     def scene_warnings(self, scene):
         if self.learned:   # a new scene: learn from scratch
-            self.grid = RegionGrid(scene, stats=len(LEARNED_P) + 3)
+            self.grid = RegionGrid(scene, stats=2 * len(LEARNED_P) + 3)
             self.settled = False
             self._learn_passes = 0
         return []
@@ -260,9 +293,7 @@ class MIS3(IntegratorTemplate):
         # second moments of small p are heavy-tailed and read low on a few samples
         ok = (n >= LEARN_MIN_VISITS) & (st[:, k + 2] >= LEARN_MIN_HITS)
         nn = np.where(ok, n, 1.0)[:, None]
-        second = st[:, :k] / nn
-        mean = (st[:, k] / nn[:, 0])[:, None]
-        var = np.maximum(second - mean ** 2, 0.0) + 1e-6 * second.mean(axis=1, keepdims=True)
+        var = allocation_variance(st[:, :k] / nn, st[:, k] / nn[:, 0], st[:, k + 3:] / nn)
         cost = LEARN_REST_COST + LIGHT_COST * np.array(LEARNED_P)[None, :]
         j = (var + LEARN_REST_VAR * var[:, ONE:ONE + 1]) * cost
         arg = np.argmin(j, axis=1)
@@ -320,6 +351,9 @@ class MIS3(IntegratorTemplate):
         vals = [value * value * inv_q0 * dr.select(delta, 1.0 / p, safe_div(1.0, p * pdf_l + q_b))
                 for p in LEARNED_P]
         vals += [value * inv_q0, mi.Float(0.0), mi.Float(1.0)]   # mean, (visits), hits
+        # the light technique's share mu_l(p) = int I w_l(p), w_l = p p_l / (p p_l + q_b)
+        vals += [value * inv_q0 * dr.select(delta, 1.0, safe_div(p * pdf_l, p * pdf_l + q_b))
+                 for p in LEARNED_P]
         self.grid.add(cell, vals, active & (value > 0))
 
     def technique_probs(self, bsdf, si, has_lights: bool, active):
