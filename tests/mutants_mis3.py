@@ -17,6 +17,6 @@ MUTANTS = [
     # the learned allocation's variance model back to M - mu^2 (negative wherever both
     # techniques share the mean: every allocation then looked free of variance)
     ("allocation-variance-minus-mean-squared", "integrators/plugins/mis3.py",
-     "var = second - mean_l ** 2 / c - (mean - mean_l) ** 2",
-     "var = second - mean ** 2", ["test_mis3_learned.py"]),
+     "np.maximum(second - mean_l ** 2 / c - (mean - mean_l) ** 2, 0.0)",
+     "np.maximum(second - mean ** 2, 0.0)", ["test_mis3_learned.py"]),
 ]

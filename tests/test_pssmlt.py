@@ -367,13 +367,15 @@ def test_auto_estimator_is_bdpt_where_depth_and_scene_allow_it():
         assert np.all(np.isfinite(img)) and img.mean() > 0
         stats = integ.stats()
         assert stats["chains"] == (P.BDPT_CHAINS if expected == "bdpt" else P.PATH_CHAINS)
-        assert integ.params["chains"] == stats["chains"]     # what the run record shows
+        assert notes["chains"] == stats["chains"]            # what the run record shows
+        assert notes["importance_cap"] == integ.importance_cap
+        assert integ.params["chains"] == P.PATH_CHAINS        # params: what was asked for
         assert integ.importance_cap == (P.BDPT_IMPORTANCE_CAP if expected == "bdpt" else 0)
         del scene, integ
     gc.collect()
     # an explicit estimator is kept as given (no notes on a choice)
     integ = pssmlt()
-    assert integ.run_notes() == {"estimator": "path"}
+    assert integ.run_notes() == {"estimator": "path", "chains": 4096, "importance_cap": 0.0}
 
 
 def test_bdpt_estimator_refuses_what_bdpt_refuses_in_one_line():

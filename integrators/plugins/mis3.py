@@ -82,6 +82,7 @@ With p(1) = p(2) = 0 (``p_light = 1``) the continuation is the BSDF's own sample
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import drjit as dr
 import mitsuba as mi
@@ -113,7 +114,8 @@ LIGHT_COST = 0.5
 #: 0 allocates up to 4 light samples wherever they lower the vertex's variance (veach_mis 1.45x
 #: `path`, but the Cornell box 0.68x and small_light 0.58x, whose noise is indirect or in the
 #: camera's view of the light), 1 allocates too little for veach_mis (0.82x); 0.3 keeps every
-#: experiment scene at 0.76x or more (geometric mean 1.08x; benchmarks/results/mis3/variance)
+#: experiment scene at 0.76x or more (geometric mean 1.08x, as 1's; one run each, within the
+#: noise of each other; benchmarks/results/mis3/variance)
 LEARN_REST_COST = 1.0
 LEARN_REST_VAR = 0.3
 #: visits a region needs before its learned probability replaces the adaptive one
@@ -136,8 +138,9 @@ def allocation_variance(second, mean, mean_l, candidates=LEARNED_P):
     r"""Variance of a vertex's direct-light estimate for each candidate allocation c, from the
     statistics of :meth:`MIS3._learn` (per region: rows; per candidate: columns).
 
-    With the balance heuristic, c light samples (c <= 1: one, with probability c) and the BSDF
-    sample, the estimate is a sum of f / (c p_l + p_b) over the samples drawn, and
+    With the balance heuristic, c light samples (c <= 1: one, with probability c; c > 1 an
+    integer) and the BSDF sample, the estimate is a sum of f / (c p_l + p_b) over the samples
+    drawn, and
 
         V(c) = M(c) - mu_l(c)^2 / max(c, 1) - mu_b(c)^2,
 
@@ -146,15 +149,25 @@ def allocation_variance(second, mean, mean_l, candidates=LEARNED_P):
     part is the mean of c samples: its squared mean counts 1/c; for c <= 1 the light sample
     and the BSDF sample are independent, whose cross term cancels).  Subtracting mu^2 instead
     understates V by 2 mu_l mu_b + (1 - 1/c) mu_l^2, which is most of V once c > 1: every
-    allocation above one then looked free of variance and the cheapest of them won.  Clamped
-    at zero (the three sums are estimates), plus a floor of 1e-6 of the mean second moment so
-    that a region of zeros keeps its cost order."""
+    allocation above one then looked free of variance and the cheapest of them won.  A
+    non-integer c > 1 is drawn as floor(c) or ceil(c) samples (``VertexEstimator.direct``),
+    whose variances mix by the fraction of c.  Clamped at zero (the three sums are estimates),
+    plus a floor of 1e-6 of the mean second moment so that a region of zeros keeps its cost
+    order."""
     second = np.asarray(second, dtype=np.float64)
     mean = np.asarray(mean, dtype=np.float64).reshape(-1, 1)
     mean_l = np.asarray(mean_l, dtype=np.float64)
-    c = np.maximum(np.asarray(candidates, dtype=np.float64), 1.0)[None, :]
-    var = second - mean_l ** 2 / c - (mean - mean_l) ** 2
-    return np.maximum(var, 0.0) + 1e-6 * second.mean(axis=1, keepdims=True)
+    cand = [float(x) for x in candidates]
+    c = np.maximum(np.array(cand), 1.0)[None, :]
+    var = np.maximum(second - mean_l ** 2 / c - (mean - mean_l) ** 2, 0.0)
+    # a count c > 1 between integers is rounded to floor(c) or ceil(c) light samples, each
+    # count's estimate unbiased: the variance is the mixture (1 - t) V(floor) + t V(ceil)
+    for j, x in enumerate(cand):
+        lo, hi = math.floor(x), math.ceil(x)
+        if x > 1 and lo != hi and float(lo) in cand and float(hi) in cand:
+            t = x - lo
+            var[:, j] = (1 - t) * var[:, cand.index(float(lo))] + t * var[:, cand.index(float(hi))]
+    return var + 1e-6 * second.mean(axis=1, keepdims=True)
 
 
 def _prob(name, default, doc):

@@ -57,7 +57,9 @@ image's mean luminance), Metropolis sampling draws u with density I(u)/b, and pi
   renders the scene (:meth:`PSSMLT.auto_choice`, once per scene and sensor), else ``path``, and
   says which and why in ``run_notes()``: on the caustic and glass-shade scenes bdpt's chains
   have 0.24-0.42x Mitsuba's ``path`` error at equal time where the path estimator's have
-  1.05-2.5x (``benchmarks/results/pssmlt/cap``).  ``max_depth`` -1 keeps ``path``: bdpt needs a
+  1.05-2.5x (``benchmarks/results/pssmlt/cap``).  On an evenly lit scene Metropolis loses
+  with either estimator, and bdpt's more (the Cornell box: 9.8x ``path``'s error against 6.2x):
+  render those with ``path`` or ``bdpt``.  ``max_depth`` -1 keeps ``path``: bdpt needs a
   finite depth, and capping it would truncate energy.
 * **Many chains**, one per Dr.Jit lane (``chains``).  Each step proposes, for every chain, a
   large step (a fresh uniform vector) with probability ``large_step``, otherwise Kelemen's small
@@ -306,12 +308,12 @@ class PSSMLT(IntegratorTemplate):
         if bd:
             self.dims_cam, self.dims_light = bdpt_dims(self.max_depth)
             self.dims, self.extra = self.dims_cam + self.dims_light, True
-        # (the run record's params show the values used)
+        # (the values used go to run_notes: the record's params are what was asked for, its
+        # identity for merges, copied before the first render decides)
         if "chains" not in self.given:   # bdpt: one kernel per step, wide steps pay
-            self.params["chains"] = self.chains = BDPT_CHAINS if bd else PATH_CHAINS
+            self.chains = BDPT_CHAINS if bd else PATH_CHAINS
         if "importance_cap" not in self.given:
-            self.params["importance_cap"] = self.importance_cap = \
-                BDPT_IMPORTANCE_CAP if bd else 0.0
+            self.importance_cap = BDPT_IMPORTANCE_CAP if bd else 0.0
 
     def auto_choice(self, scene, sensor):
         """estimator=auto: bdpt where max_depth is within its range and bdpt renders the scene
@@ -333,8 +335,10 @@ class PSSMLT(IntegratorTemplate):
         self._auto_for, self.auto_reason = (scene, sensor), why
 
     def run_notes(self) -> dict:
-        """For the run record: which estimator the chains drove (and, for auto, why)."""
-        notes = {"estimator": self.estimator}
+        """For the run record: which estimator the chains drove (and, for auto, why), with the
+        chains and importance cap it used."""
+        notes = {"estimator": self.estimator, "chains": self.chains,
+                 "importance_cap": self.importance_cap}
         if self.auto:
             notes["estimator_auto"] = self.auto_reason
         return notes
