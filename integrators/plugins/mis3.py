@@ -114,8 +114,8 @@ LIGHT_COST = 0.5
 #: 0 allocates up to 4 light samples wherever they lower the vertex's variance (veach_mis 1.45x
 #: `path`, but the Cornell box 0.68x and small_light 0.58x, whose noise is indirect or in the
 #: camera's view of the light), 1 allocates too little for veach_mis (0.82x); 0.3 keeps every
-#: experiment scene at 0.76x or more (geometric mean 1.08x, as 1's; one run each, within the
-#: noise of each other; benchmarks/results/mis3/variance)
+#: experiment scene at 0.72x or more over two runs (geometric mean 1.04-1.08x, 1's 1.08x; one
+#: or two runs each, within the noise of each other; benchmarks/results/mis3/variance)
 LEARN_REST_COST = 1.0
 LEARN_REST_VAR = 0.3
 #: visits a region needs before its learned probability replaces the adaptive one
