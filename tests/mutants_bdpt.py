@@ -21,6 +21,15 @@ MUTANTS = [
     ("bdpt-light-tracing-no-visibility", _BDPT,
      "            active &= ~scene.ray_test(si.spawn_ray_to(ds.p), active)\n",
      "", _T),
+    # a path longer than bidir_depth keeps the terms of the strategies s >= 2 in its s = 0
+    # weight (no light subpath can build it): its weights sum to less than one
+    ("bdpt-long-path-keeps-light-subpath-terms", _BDPT,
+     "dr.select(depth <= bd_depth, mis(emission_w) * dvc,\n                                                   0.0)",
+     "mis(emission_w) * dvc", _T),
+    # the same for next-event estimation's weight
+    ("bdpt-long-path-nee-keeps-light-subpath-terms", _BDPT,
+     "dr.select(depth + 1 <= bd_depth, mis(ratio) * (dvcm + dvc * mis(p_rev_l)),\n                              0.0)",
+     "mis(ratio) * (dvcm + dvc * mis(p_rev_l))", _T),
     # a connection without the 1/d^2 of the geometry term
     ("bdpt-connection-without-inverse-square", _BDPT,
      "beta_y * (w * inv_d2)", "beta_y * w", _T),
@@ -70,7 +79,7 @@ MUTANTS = [
      "pdf_e = dr.select(area, pdf_area, dr.select(inf, p_dir, dir_pdf))", _T),
     # the camera's escape weighted without the light subpaths that reach the environment
     ("bdpt-env-escape-without-emission-term", _BDPT,
-     "+ mis(pick_env_e * p_env * disk_pdf) * dvc)", ")", _T),
+     "mis(pick_env_e * p_env * disk_pdf) * dvc, 0.0))", "0.0, 0.0))", _T),
     # next-event estimation to the environment: the emission ratio without the disk pdf
     ("bdpt-env-nee-ratio-without-disk", _BDPT,
      "dr.select(inf_l, pos_pdf_l * cos_z,", "dr.select(inf_l, cos_z,", _T),

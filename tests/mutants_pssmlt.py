@@ -97,6 +97,6 @@ MUTANTS = [
      "            lum = lum\n        return pix, rgb, lum", _T),
     # estimator=auto takes bdpt without asking bdpt whether it renders the scene
     ("pssmlt-auto-skips-scene-check", _P,
-     "                self.bdpt_estimator(scene, sensor)\n                choice, why = \"bdpt\"",
-     "                choice, why = \"bdpt\"", _T),
+     "            self.bdpt_estimator(scene, sensor)\n            choice, why = \"bdpt\"",
+     "            choice, why = \"bdpt\"", _T),
 ]

@@ -5,13 +5,15 @@ over channels or blocks and channels, so each check falsely fails with probabili
 
 * closed emitting box (radiancemeter: strategies s = 0, s = 1 and every s, t >= 2; t = 1 has
   no use for a delta-direction sensor): L = le sum_{k < max_depth} rho^k, with the power and
-  the balance heuristic, several depths, fixed and throughput roulette; the test must also be
+  the balance heuristic, several depths, fixed and throughput roulette, and paths longer than
+  ``bidir_depth`` (unbounded or not: s = 0 and s = 1 alone past it); the test must also be
   strong enough to see a 5 % bias (relative s.e. bound of the kit);
 * polygon lights and point lights over a plane (Lambert's closed form, direct light);
 * the same expected image as Mitsuba's ``path`` (Welch t per 4x4 block and channel, 16 batch
   means per side) on the Cornell box (every strategy, light tracing onto the film included),
   on a box with a glass and a mirror sphere and glossy walls (delta lobes on both subpaths), on
   the Cornell box lit by a point and a spot light (delta lights) and on the caustic scene;
+  the Cornell box at max_depth -1 with a short ``bidir_depth``;
 * environment lights: furnaces (a diffuse and a glass sphere in a constant environment, closed
   forms) and the same expected image as path under a constant sky and an envmap; several lights
   (environment, area lamp, point light) with every ``light_selection`` mode; ``hide_emitters``
@@ -46,6 +48,7 @@ RES, BATCHES, SPP = 16, 16, 256
     ("diffuse", 3, {}),
     ("diffuse", 2, {"heuristic": "balance"}),
     ("glass", 5, {}),
+    ("diffuse", -1, {"bidir_depth": 2}),
 ])
 def test_environment_furnaces(case, depth, extra):
     """Closed forms in a constant environment (H0: unbiased): a diffuse sphere, L = rho env
@@ -147,6 +150,10 @@ def test_hide_emitters_same_image(key):
     (6, {}),
     (6, {"heuristic": "balance", "rr": "fixed", "rr_prob": 0.3, "rr_depth": 2}),
     (5, {"heuristic": "power", "beta": 3.0, "light_selection": "uniform"}),
+    # paths longer than bidir_depth: s = 0 and s = 1 only, unbounded (-1) or up to max_depth
+    (-1, {}),
+    (-1, {"bidir_depth": 3}),
+    (7, {"bidir_depth": 2, "heuristic": "balance"}),
 ])
 def test_closed_box(depth, extra):
     scene, expected = closed_box(rho=0.5, le=1.0, max_depth=depth, spp=1024)
@@ -199,6 +206,15 @@ def cornell(res=RES, lights="area"):
 def test_cornell_box_same_image_as_path():
     scene = cornell()
     assert_unbiased(scene, reference("cornell", scene, 5), {"type": "bdpt", "max_depth": 5},
+                    batches=BATCHES, spp=SPP)
+
+
+def test_cornell_box_unbounded_same_image_as_path():
+    """max_depth -1 with bidir_depth 3: paths of 4 or more segments (up to Russian roulette)
+    by s = 0 and s = 1 with their own weights, every strategy (light tracing too) below."""
+    scene = cornell()
+    assert_unbiased(scene, reference("cornell", scene, -1),
+                    {"type": "bdpt", "max_depth": -1, "bidir_depth": 3},
                     batches=BATCHES, spp=SPP)
 
 
@@ -340,8 +356,11 @@ def test_cli_render(tmp_path):
 
 
 @pytest.mark.parametrize("props,needle", [
-    ({"max_depth": -1}, "max_depth"),
-    ({"max_depth": 65}, "max_depth"),
+    ({"max_depth": -2}, "max_depth"),
+    ({"bidir_depth": 1}, "bidir_depth"),
+    ({"bidir_depth": 65}, "bidir_depth"),
+    ({"strategy_images": True}, "max_depth"),
+    ({"strategy_images": True, "max_depth": 9, "bidir_depth": 8}, "max_depth"),
     ({"heuristic": "cutoff"}, "heuristic"),
     ({"light_selection": "tree"}, "light_selection"),
 ])

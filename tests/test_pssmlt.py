@@ -19,7 +19,7 @@ them into the end-of-run false-failure bound):
 
 Deterministic checks: a chain's stored state is what its stored primary vector evaluates to;
 passes with consecutive seeds continue the chains (and other seeds start afresh); parameters,
-defaults, and the bdpt estimator's refusals (an unbounded max_depth, what bdpt refuses).
+defaults, and the bdpt estimator's refusals (what bdpt refuses).
 """
 from __future__ import annotations
 
@@ -208,10 +208,10 @@ def test_bootstrap_b_is_unbiased(estimator, batches, seed, relative):
                                 f"vs {y.mean():.5f}, t {t:.2f}, p {p:.3g}")
 
 
-def _compare(scene, n, spp, ref_n, ref_spp, block, guard, **kw):
-    ours = renders(scene, pssmlt(**kw), n, spp, 11)
-    ref = renders(scene, mi.load_dict({"type": "path", "max_depth": 5}), ref_n, ref_spp,
-                  100003)
+def _compare(scene, n, spp, ref_n, ref_spp, block, guard, max_depth=5, **kw):
+    ours = renders(scene, pssmlt(max_depth=max_depth, **kw), n, spp, 11)
+    ref = renders(scene, mi.load_dict({"type": "path", "max_depth": max_depth}), ref_n,
+                  ref_spp, 100003)
     r = image_test(ours, ref, block=block)
     assert r.passed, f"H0 ({r.h0}) rejected: {r}"
     assert r.rel_se < guard, f"too noisy to see the bias: {r}"
@@ -232,6 +232,19 @@ def test_image_mean_matches_path(which, estimator):
         # noise adds to the mean's: more renders for the same power)
         _compare(glass_shade(16), 32 if estimator == "path" else 48, 64, 24, 2048, 16, 0.0075,
                  bootstrap=131072, estimator=estimator)
+
+
+@pytest.mark.parametrize("which", ["cornell", "glass_shade"])
+def test_default_estimator_at_unbounded_depth_matches_path(which):
+    """max_depth -1 and estimator auto (the defaults): the chains drive bdpt, whose paths past
+    its bidir_depth are path-traced without a bound.  H0 as test_image_mean_matches_path,
+    against path at max_depth -1 (the same power guard)."""
+    if which == "cornell":
+        _compare(cornell(16), 32, 64, 24, 2048, 16, 0.0075, max_depth=-1, bootstrap=65536,
+                 estimator="auto")
+    else:
+        _compare(glass_shade(16), 48, 64, 24, 2048, 16, 0.0075, max_depth=-1,
+                 bootstrap=131072, estimator="auto")
 
 
 @pytest.mark.parametrize("estimator,importance,cap",
@@ -337,17 +350,10 @@ def test_defaults_render():
     assert img.shape == (8, 8, 1) and np.all(np.isfinite(img)) and img.mean() > 0
 
 
-def test_bdpt_estimator_needs_a_finite_depth_in_one_line():
-    with pytest.raises(Exception) as e:
-        mi.load_dict({"type": "pssmlt", "estimator": "bdpt"})
-    msg = str(e.value)
-    assert "'max_depth' = -1" in msg and "estimator 'bdpt'" in msg and "0 to 64" in msg
-
-
 def test_auto_estimator_is_bdpt_where_depth_and_scene_allow_it():
-    """estimator=auto (the default): bdpt, with its chains and cap, for a finite max_depth on
-    a scene bdpt renders; path for max_depth -1 and for a scene bdpt refuses (a directional
-    light), with the reason in the run notes; the chosen estimator's defaults follow it."""
+    """estimator=auto (the default): bdpt, with its chains and cap, on a scene bdpt renders
+    (max_depth finite or -1); path for a scene bdpt refuses (a directional light), with the
+    reason in the run notes; the chosen estimator's defaults follow it."""
     def scene_with(integ, sun=False):
         d = mi.cornell_box()
         d["sensor"]["film"].update(width=8, height=8, pixel_format="rgb")
@@ -355,8 +361,8 @@ def test_auto_estimator_is_bdpt_where_depth_and_scene_allow_it():
             d["sun"] = {"type": "directional", "direction": [0, -1, 0]}
         d["integrator"] = integ
         return mi.load_dict(d)
-    cases = [({"max_depth": 5}, False, "bdpt", "allow bdpt"),
-             ({}, False, "path", "max_depth -1"),
+    cases = [({"max_depth": 5}, False, "bdpt", "allows bdpt"),
+             ({}, False, "bdpt", "allows bdpt"),
              ({"max_depth": 5}, True, "path", "infinite, delta direction")]
     for params, sun, expected, why in cases:
         scene = scene_with({"type": "pssmlt", "bootstrap": 4096, **params}, sun)

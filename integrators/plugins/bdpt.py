@@ -4,7 +4,7 @@ Every camera sample traces a **light subpath** y_0 y_1 ... (a light chosen by
 ``light_selection``, a point on it, a direction, then BSDF sampling in importance mode) and a
 **camera subpath** z_0 z_1 ... (the camera ray, then BSDF sampling), both with Russian roulette,
 and combines every strategy (s, t) (s light vertices, t camera vertices) that builds a path of at
-most ``max_depth`` segments (s + t - 1):
+most ``max_depth`` segments (s + t - 1; longer than ``bidir_depth``: s = 0 and 1 only, below):
 
 * s = 0: the camera subpath hits an area light or escapes to the environment;
 * s = 1: next-event estimation at camera vertex z_{t-1} (a fresh light sample, as pbrt-v4);
@@ -26,12 +26,19 @@ be an end of a connection, a delta light (point, spot) cannot be hit, the pinhol
 The light-tracing strategies take the camera's film-wide directional density, so with one light
 subpath per camera sample no count factor enters the weights.
 
-**Vertex cap**: light vertices are stored per lane and depth in flat Dr.Jit arrays
-(``lane * cap + k``) with ``cap = max_depth - 2``, so ``max_depth`` must be finite: its default
-is 8 and -1 (unlimited) is refused; 0 <= ``max_depth`` <= 64 (1: emitters seen directly, 0:
-nothing, as Mitsuba).  Storage is about (27 + channels) x 4 bytes per vertex; renders with more
-samples than fit in ``MEMORY_BUDGET`` are done in chunks of whole samples per pixel (each with its
-own seed) inside one ``render`` call.
+**Depth** (``max_depth``, Mitsuba's meaning: -1 unlimited, the default; 1 emitters seen directly;
+0 nothing): light vertices are stored per lane and depth in flat Dr.Jit arrays
+(``lane * cap + k``), so the light subpath is finite: paths of at most D = ``bidir_depth``
+segments (default 16; ``max_depth`` where that is shorter) are built by every strategy, and
+longer ones, up to ``max_depth`` (Russian roulette ends them), by the camera subpath's s = 0
+and s = 1 alone.  The weights of a path of k > D segments are those of path tracing with
+next-event estimation (the heuristic over s = 0 and s = 1: the camera-side sums' terms of
+s >= 2 are dropped), so for every path length the weights of the strategies that can build it
+sum to one and the image is unbiased for any ``max_depth``; ``bidir_depth`` trades the cost of
+long light subpaths and their connections for bidirectional weights on long paths.  Storage is
+about (27 + channels) x 4 bytes per stored vertex (``cap = D - 2``); renders with more samples
+than fit in ``MEMORY_BUDGET`` are done in chunks of whole samples per pixel (each with its own
+seed) inside one ``render`` call.
 
 **Environment lights** (``constant``, ``envmap``; as pbrt-v4's BDPT and SmallVCM): a light
 subpath from the environment samples a direction with the emitter's own density p_dir, then a
@@ -61,7 +68,8 @@ of the two enters next-event estimation's weight and the first light vertex's ``
 **Strategy images** (``strategy_images=true``): AOV layers ``s<s>_t<t>`` (R, G, B) hold each
 strategy's weighted contribution (Veach's strategy figure: which strategy carries a scene); they
 sum to the image.  ``heuristic=none`` weights every strategy 1, so that each layer estimates all
-paths of its length (the check of the strategies and of the weights in the tests).
+paths of its length (the check of the strategies and of the weights in the tests); they need
+``max_depth`` within 0 .. ``bidir_depth`` (every path built by every strategy).
 
 **Chunks and seeds**: a chunk k > 0 of a render with seed ``seed`` uses the sampler seed
 ``seed + k * 0x9E3779B9`` (mod 2^32); only renders of more samples than ``MEMORY_BUDGET``
@@ -76,8 +84,8 @@ from __future__ import annotations
 import drjit as dr
 import mitsuba as mi
 
-from ..common import emitted, is_jit, safe_div
-from ..params import Param
+from ..common import depth_limit, emitted, is_jit, safe_div
+from ..params import MAX_DEPTH_VALUE, Param, ParameterError
 from ..registry import plugin
 from ..sampling import light_selection, roulette
 from ..sampling.subpath import (EmitterTables, LambertTable, LightWalk, Mis, VertexStore,
@@ -86,7 +94,10 @@ from ..sampling.subpath import (EmitterTables, LambertTable, LightWalk, Mis, Ver
                                 spectrum_channels)
 from .base import HIDE_EMITTERS, IntegratorTemplate, SceneError, _on_emitter, skip_emitters
 
+#: the most segments a path built by every strategy can have (``bidir_depth``)
 MAX_BDPT_DEPTH = 64
+#: its default: paths of at most 16 segments take every strategy
+BIDIR_DEPTH = 16
 #: bytes of stored light vertices per chunk of samples (chunks hold whole samples per pixel)
 MEMORY_BUDGET = 256 << 20
 
@@ -96,9 +107,13 @@ class BDPT(IntegratorTemplate):
     """Bidirectional path tracing: every (s, t) strategy, balance/power MIS by ratio recurrences."""
 
     PARAMS = (
-        Param("max_depth", "int", 8, min=0, max=MAX_BDPT_DEPTH,
-              doc="Longest path depth in segments (1: emitters seen directly; finite: light "
-                  "vertices are stored per depth)."),
+        Param("max_depth", "int", -1, min=0, max=MAX_DEPTH_VALUE, allow=(-1,),
+              doc="Longest path depth in segments (-1: unlimited; 1: emitters seen directly), "
+                  "Mitsuba's meaning."),
+        Param("bidir_depth", "int", BIDIR_DEPTH, min=2, max=MAX_BDPT_DEPTH,
+              doc="Paths of at most this many segments are built by every strategy (light "
+                  "vertices are stored per depth up to it); longer ones, up to max_depth, by "
+                  "path tracing with next-event estimation (s = 0 and s = 1) only."),
         *roulette.RR_PARAMS,
         Param("heuristic", "choice", "power", choices=("balance", "power", "none"),
               doc="MIS weighting over the (s, t) strategies (none: every strategy weighted 1, "
@@ -119,6 +134,13 @@ class BDPT(IntegratorTemplate):
 
     def setup(self):
         self.mis = Mis("balance" if self.heuristic == "none" else self.heuristic, self.beta)
+        #: D: paths of at most D segments take every strategy, longer ones s = 0 and 1 only
+        self.bd_depth = bidirectional_depth(self.max_depth, self.bidir_depth)
+        if self.strategy_images and not 0 <= self.max_depth <= self.bd_depth:
+            raise ParameterError(
+                f"bdpt: parameter 'strategy_images' = true needs every path built by every "
+                f"strategy: 'max_depth' = {self.max_depth} is not allowed with it; allowed: 0 "
+                f"to bidir_depth ({self.bidir_depth})")
         self.strategies = strategy_list(self.max_depth) if self.strategy_images else []
         self.rr = roulette.Roulette.from_params(self.params)
         self.lights = light_selection.SelectionCache.of(self)
@@ -214,7 +236,7 @@ class BDPT(IntegratorTemplate):
             return film.develop() if develop else None
         crop = film.crop_size()
         pixels = int(crop[0]) * int(crop[1])
-        cap = max(self.max_depth - 2, 0)
+        cap = max(self.bd_depth - 2, 0)
         per_lane = max(cap, 1) * (27 + spectrum_channels()) * 4
         spp_chunk = max(1, min(spp, MEMORY_BUDGET // max(per_lane * pixels, 1)))
         done, chunk = 0, 0
@@ -254,8 +276,8 @@ class BDPT(IntegratorTemplate):
 
         # 1. light subpaths: stored vertices, light tracing onto the film (t = 1)
         pinhole = _is_pinhole(sensor)
-        if self.max_depth >= 2:
-            walk = LightWalk(self.mis, self.rr, self.max_depth - 1, self.max_depth - 2, lambert)
+        if self.bd_depth >= 2:
+            walk = LightWalk(self.mis, self.rr, self.bd_depth - 1, self.bd_depth - 2, lambert)
             scale = 1.0 / spp_total
             splat = self.light_tracer(scene, sensor, sampler, block_lt, scale) if pinhole \
                 else None
@@ -305,7 +327,7 @@ class BDPT(IntegratorTemplate):
         """Light vertex y_{depth} connected to the pinhole: (film position in pixels relative
         to the crop window, weighted RGB contribution times ``scale``, active).  Draws two
         numbers (the sensor's direction sample)."""
-        mis, max_depth, lambert = self.mis, self.max_depth, self._lambert
+        mis, max_depth, lambert = self.mis, self.bd_depth, self._lambert
         ctx = mi.BSDFContext(mi.TransportMode.Importance)
         u = sampler.next_2d(active)
         active = active & (depth + 1 <= max_depth)
@@ -336,7 +358,9 @@ class BDPT(IntegratorTemplate):
         make such paths, with weight 1)."""
         seen = leave_out is None
         delta = leave_out == "delta"
-        mis, max_depth, lambert = self.mis, self.max_depth, self._lambert
+        mis, lambert = self.mis, self._lambert
+        max_depth = depth_limit(self.max_depth)
+        bd_depth = self.bd_depth     # longer paths: s = 0 and s = 1 only (no dvc terms)
         sel_e = self.emission_selection(scene, sel)
         pinhole = _is_pinhole(sensor)
         hide = self.hide_emitters
@@ -382,7 +406,8 @@ class BDPT(IntegratorTemplate):
                 _, disk_pdf, _ = tables.lookup(em_env, esc)
                 p_env = environment_direction_pdf(em_env, ray.d, esc & ~first)
                 w_env = self.weight(1.0 + mis(pick_env * p_env) * dvcm
-                                    + mis(pick_env_e * p_env * disk_pdf) * dvc)
+                                    + dr.select(depth <= bd_depth,
+                                                mis(pick_env_e * p_env * disk_pdf) * dvc, 0.0))
                 w_env = dr.select(first, w_seen, w_env)
                 if dr.hint(delta, mode="scalar"):
                     w_env = dr.select(prefix, 0.0, w_env)
@@ -413,7 +438,9 @@ class BDPT(IntegratorTemplate):
             direct_a = pick * p_nee * cos_in * safe_div(1.0, dist2)
             emission_w = pick_e * pos_pdf * cos_in * dr.inv_pi
             w0 = dr.select(first, w_seen,
-                           self.weight(1.0 + mis(direct_a) * dvcm + mis(emission_w) * dvc))
+                           self.weight(1.0 + mis(direct_a) * dvcm
+                                       + dr.select(depth <= bd_depth, mis(emission_w) * dvc,
+                                                   0.0)))
             if dr.hint(delta, mode="scalar"):
                 w0 = dr.select(prefix, 0.0, w0)
             L += dr.select(hit_light, beta * le * w0, 0.0)
@@ -446,13 +473,14 @@ class BDPT(IntegratorTemplate):
             w_light = dr.select(ds_l.delta, 0.0, mis(safe_div(p_fwd_l, ds_l.pdf)))
             if dr.hint(sel_e is not sel, mode="scalar"):   # the light subpath's pmf differs
                 ratio *= safe_div(sel_e.pmf(ds_l.emitter, vis), pick_l)
-            w_cam = mis(ratio) * (dvcm + dvc * mis(p_rev_l))
+            w_cam = dr.select(depth + 1 <= bd_depth, mis(ratio) * (dvcm + dvc * mis(p_rev_l)),
+                              0.0)
             w1 = self.weight(w_light + 1.0 + w_cam)
             L += dr.select(vis, beta * f_l * w_em * w1, 0.0)
             self.record(sbuf, lane, strategy_id(1, depth + 1), beta * f_l * w_em * w1, vis)
 
             # s >= 2, t >= 2: connections to the stored light vertices
-            conn = smooth & (depth + 2 <= max_depth)
+            conn = smooth & (depth + 2 <= bd_depth)
             L += self.connect(scene, store, lane, si, bsdf, beta, dvcm, dvc, depth, conn, sbuf)
 
             # continue with the BSDF sample drawn above (radiance mode)
@@ -478,7 +506,7 @@ class BDPT(IntegratorTemplate):
     @dr.syntax
     def connect(self, scene, store, lane, si, bsdf, beta, dvcm, dvc, depth, active, sbuf=None):
         """Sum over the stored light vertices y_k of the weighted connection z -- y_k."""
-        mis, max_depth, lambert = self.mis, self.max_depth, self._lambert
+        mis, max_depth, lambert = self.mis, self.bd_depth, self._lambert
         ctx = mi.BSDFContext()
         ctx_l = mi.BSDFContext(mi.TransportMode.Importance)
         L = mi.Spectrum(0.0)
@@ -534,6 +562,12 @@ class _Buffer:
 
     def __init__(self, a):
         self.a = a
+
+
+def bidirectional_depth(max_depth: int, bidir_depth: int) -> int:
+    """D: the longest path (segments) that every strategy builds: ``bidir_depth``, or
+    ``max_depth`` where that is finite and shorter."""
+    return bidir_depth if max_depth < 0 else min(max_depth, bidir_depth)
 
 
 def strategy_list(max_depth: int) -> list:

@@ -40,7 +40,8 @@ image's mean luminance), Metropolis sampling draws u with density I(u)/b, and pi
   throughput roulette from depth 5): the shared :meth:`VertexEstimator.path`, driven by a
   :class:`PrimarySampler` that reads the chain's primary vector instead of a sampler.
 * **``estimator=bdpt``** drives every strategy of :mod:`integrators.plugins.bdpt` instead (same
-  ``max_depth``, which must then be finite, 0-64; ``hide_emitters``; light selection by power):
+  ``max_depth``, any; bdpt's default ``bidir_depth``, so paths longer than 16 segments take
+  s = 0 and s = 1 only; ``hide_emitters``; light selection by power):
   a primary sample is one camera subpath and one light subpath, each reading its own part of
   the vector (the camera's first: film position, then per vertex a light sample, a BSDF
   sample and roulette; the light's: its start, then per vertex the connection to the
@@ -53,14 +54,17 @@ image's mean luminance), Metropolis sampling draws u with density I(u)/b, and pi
   its steps are one per kernel launch (:func:`step_splats`), not fused: the default
   ``chains`` is then ``BDPT_CHAINS`` (16,384), wide enough to pay for the launch.  Scenes
   bdpt refuses (directional lights, media, non-perspective cameras) are refused.
-* **``estimator=auto``** (the default) takes ``bdpt`` where ``max_depth`` is within 0-64 and bdpt
-  renders the scene (:meth:`PSSMLT.auto_choice`, once per scene and sensor), else ``path``, and
-  says which and why in ``run_notes()``: on the caustic and glass-shade scenes bdpt's chains
-  have 0.24-0.42x Mitsuba's ``path`` error at equal time where the path estimator's have
-  1.05-2.5x (``benchmarks/results/pssmlt/cap``).  On an evenly lit scene Metropolis loses
-  with either estimator, and bdpt's more (the Cornell box: 9.8x ``path``'s error against 6.2x):
-  render those with ``path`` or ``bdpt``.  ``max_depth`` -1 keeps ``path``: bdpt needs a
-  finite depth, and capping it would truncate energy.
+* **``estimator=auto``** (the default) takes ``bdpt`` where bdpt renders the scene
+  (:meth:`PSSMLT.auto_choice`, once per scene and sensor), else ``path``, and says which and
+  why in ``run_notes()``.  Any ``max_depth`` takes ``bdpt`` (-1, the default, included:
+  bdpt's paths beyond ``bidir_depth`` are path-traced, unbounded).  On the caustic and
+  glass-shade scenes bdpt's chains had 0.24-0.42x Mitsuba's ``path`` error at equal time
+  where the path estimator's had 1.05-2.5x (``benchmarks/results/pssmlt/cap``, max_depth 8);
+  on a faster machine, where ``path`` reaches 4,000-6,800 spp in the 8 s, 0.47-0.73x at
+  max_depth -1 and 0.39-1.00x at 8, the worst where a chain holds a rare bright path (a blob;
+  ``benchmarks/results/pssmlt/unbounded``, ``depth8_rerun``).  On an evenly lit scene
+  Metropolis loses with either estimator, and bdpt's more (the Cornell box: 9.8x ``path``'s
+  error against 6.2x): render those with ``path`` or ``bdpt``.
 * **Many chains**, one per Dr.Jit lane (``chains``).  Each step proposes, for every chain, a
   large step (a fresh uniform vector) with probability ``large_step``, otherwise Kelemen's small
   step (every coordinate moved by at most ``sigma``, mod 1; a symmetric proposal), and accepts
@@ -123,7 +127,7 @@ from ..sampling import primary_sample as ps
 from ..sampling.subpath import LightWalk, VertexStore, is_delta_sample
 from ..sampling.vertex import VertexEstimator
 from .base import HIDE_EMITTERS, MAX_DEPTH, IntegratorTemplate, SceneError
-from .bdpt import MAX_BDPT_DEPTH, _is_pinhole
+from .bdpt import BIDIR_DEPTH, _is_pinhole, bidirectional_depth
 
 MAX_CHAINS = 1 << 20
 ESTIMATORS = ("auto", "path", "bdpt")
@@ -238,9 +242,8 @@ class PSSMLT(IntegratorTemplate):
               doc="Independent paths that estimate the normalisation b and seed the chains."),
         Param("estimator", "choice", "auto", choices=ESTIMATORS,
               doc="Path estimator driven by the chains: path (nee_path's), bdpt (every "
-                  "strategy of bdpt, light tracing included; needs 0 <= max_depth <= 64), or "
-                  "auto: bdpt where max_depth and the scene allow it, else path (the run "
-                  "record says which and why)."),
+                  "strategy of bdpt, light tracing included), or auto: bdpt where the "
+                  "scene allows it, else path (the run record says which and why)."),
         Param("separate_emission", "bool", True,
               doc="Render the emission seen directly by camera rays apart (spp camera rays "
                   "per pixel), not by the chains, which lights in view would draw to them "
@@ -263,11 +266,6 @@ class PSSMLT(IntegratorTemplate):
     )
 
     def setup(self):
-        if self.estimator == "bdpt" and not 0 <= self.max_depth <= MAX_BDPT_DEPTH:
-            raise ParameterError(
-                f"pssmlt: parameter 'max_depth' = {self.max_depth} cannot be used with "
-                f"estimator 'bdpt' (it stores light vertices per depth); allowed: 0 to "
-                f"{MAX_BDPT_DEPTH}")
         if not is_jit():
             raise ParameterError(
                 f"pssmlt: variant {mi.variant()} is not supported (the chains are Dr.Jit "
@@ -280,18 +278,15 @@ class PSSMLT(IntegratorTemplate):
         self.auto = self.estimator == "auto"
         self.auto_reason = None
         self._auto_for = None
+        #: the bdpt estimator's D: paths of at most D segments take every strategy of bdpt
+        self.bd_depth = bidirectional_depth(self.max_depth, BIDIR_DEPTH)
         # (auto: provisional until render() sees the scene)
-        self.use_estimator(self.estimator if not self.auto else
-                           "bdpt" if self.bdpt_depth_ok else "path")
+        self.use_estimator("bdpt" if self.auto else self.estimator)
         self.state = None
         #: importance=relative: per pixel g of the current run's chains (pilot_scale)
         self.pilot = None
         #: importance_cap: the cap on I of the current run's chains (set by its bootstrap)
         self.cap = None
-
-    @property
-    def bdpt_depth_ok(self) -> bool:
-        return 0 <= self.max_depth <= MAX_BDPT_DEPTH
 
     def use_estimator(self, estimator: str):
         """Drive the chains with ``estimator`` ('path' | 'bdpt'), and set what depends on it:
@@ -306,7 +301,7 @@ class PSSMLT(IntegratorTemplate):
         #: bdpt estimator also the emission seen through delta scatterings only
         self.left_out = None if not self.separate_emission else ("delta" if bd else "direct")
         if bd:
-            self.dims_cam, self.dims_light = bdpt_dims(self.max_depth)
+            self.dims_cam, self.dims_light = bdpt_dims(self.max_depth, self.bd_depth)
             self.dims, self.extra = self.dims_cam + self.dims_light, True
         # (the values used go to run_notes: the record's params are what was asked for, its
         # identity for merges, copied before the first render decides)
@@ -316,19 +311,16 @@ class PSSMLT(IntegratorTemplate):
             self.importance_cap = BDPT_IMPORTANCE_CAP if bd else 0.0
 
     def auto_choice(self, scene, sensor):
-        """estimator=auto: bdpt where max_depth is within its range and bdpt renders the scene
-        (its one-line refusal otherwise becomes the reason), else path.  Decided once per
-        (scene, sensor); a change of estimator drops the chains."""
+        """estimator=auto: bdpt where bdpt renders the scene (its one-line refusal otherwise
+        becomes the reason), else path.  Decided once per (scene, sensor); a change of
+        estimator drops the chains."""
         if self._auto_for == (scene, sensor):
             return
-        choice = "path"
-        why = (f"max_depth {self.max_depth} is outside bdpt's 0 to {MAX_BDPT_DEPTH}")
-        if self.bdpt_depth_ok:
-            try:
-                self.bdpt_estimator(scene, sensor)
-                choice, why = "bdpt", "max_depth and the scene allow bdpt"
-            except SceneError as e:
-                why = str(e)
+        try:
+            self.bdpt_estimator(scene, sensor)
+            choice, why = "bdpt", "the scene allows bdpt"
+        except SceneError as e:
+            choice, why = "path", str(e)
         if choice != self.estimator:
             self.use_estimator(choice)
             self.state = None
@@ -413,6 +405,7 @@ class PSSMLT(IntegratorTemplate):
         hide_emitters; light selection by power), checked against the scene once."""
         if self.bd is None:
             self.bd = mi.load_dict({"type": "bdpt", "max_depth": self.max_depth,
+                                    "bidir_depth": BIDIR_DEPTH,
                                     "hide_emitters": self.hide_emitters})
         if getattr(self, "_bd_checked", None) != (scene, sensor):
             self.bd.check_support(scene, sensor)
@@ -434,14 +427,15 @@ class PSSMLT(IntegratorTemplate):
         pixel of each light vertex's t = 1 connection], [their RGB values], I = the sum of
         their luminances).  The camera subpath reads the row's first ``dims_cam``
         coordinates (film position, then its vertices), the light subpath the rest.  The
-        light vertices' splats are kept per lane and depth (``max_depth - 1`` slots)."""
+        light vertices' splats are kept per lane and depth (D - 1 slots, D bdpt's
+        ``bd_depth``)."""
         bd = self.bdpt_estimator(scene, sensor)
         film = sensor.film()
         w, h = (int(x) for x in film.crop_size())
         lanes = dr.width(sampler.rows)
         lane = dr.arange(mi.UInt32, lanes)
         cam, light = self.streams(sampler)
-        md = self.max_depth
+        md = bd.bd_depth
         tables, lambert = bd.tables(scene)
         cap = max(md - 2, 0)
         slots = max(md - 1, 0)
@@ -505,28 +499,34 @@ class PSSMLT(IntegratorTemplate):
         glass, null interfaces: BSDF samples of a delta lobe), after its first hit ``si``,
         up to ``max_depth`` segments: the paths whose only strategy in bdpt is s = 0 with
         weight 1, which the chains of the bdpt estimator leave out (the camera walk's
-        ``leave_out="delta"``).  Random numbers: 3 per bounce, hashes of ``lane`` with a key
-        per bounce and dimension."""
+        ``leave_out="delta"``), with throughput roulette from depth 5 (which ends a chain
+        between parallel mirrors).  Random numbers: 4 per bounce, hashes of ``lane`` with a
+        key per bounce and dimension."""
         ctx = mi.BSDFContext()
+        rr = roulette.Roulette("throughput", 5)
         L = mi.Spectrum(0.0)
         beta = mi.Spectrum(1.0)
+        eta = mi.Float(1.0)
         ray = mi.Ray3f(ray)
         depth = mi.UInt32(1)
+        max_depth = depth_limit(self.max_depth)
         k = dr.opaque(mi.UInt32, key)
-        active = si.is_valid() & (depth < self.max_depth)
+        active = si.is_valid() & (depth < max_depth)
         while dr.hint(active, label="pssmlt delta chain"):
             bsdf = si.bsdf(ray)
-            kd = k + depth * 3
+            kd = k + depth * 4
             bs, w = bsdf.sample(ctx, si, ps.uniform(lane, kd),
                                 mi.Point2f(ps.uniform(lane, kd + 1), ps.uniform(lane, kd + 2)),
                                 active)
             active &= is_delta_sample(bs) & dr.any(w != 0)
             beta *= w
+            eta *= bs.eta
             ray = si.spawn_ray(si.to_world(bs.wo))
             si = scene.ray_intersect(ray, active)
             L += dr.select(active, beta * emitted(scene, si, active), 0.0)
+            beta, active = rr(beta, eta, depth, ps.uniform(lane, kd + 3), active)
             depth += 1
-            active &= si.is_valid() & (depth < self.max_depth)
+            active &= si.is_valid() & (depth < max_depth)
         return L
 
     def sample(self, scene, sampler, ray, medium=None, active=True):
@@ -875,15 +875,17 @@ BDPT_CHAINS = 1 << 14
 BDPT_IMPORTANCE_CAP = 8.0
 
 
-def bdpt_dims(max_depth: int) -> tuple:
+def bdpt_dims(max_depth: int, bd_depth: int) -> tuple:
     """Stored coordinates of the bdpt estimator: (camera subpath, light subpath).  Camera:
     the film position, then per vertex a light sample (3), a BSDF sample (3) and roulette
-    (1); light: the start (5), then per vertex the connection to the camera (2), a BSDF
-    sample (3) and roulette (1); at most MAX_STORED_VERTICES vertices each (fresh numbers
+    (1), up to ``max_depth`` vertices (-1: unlimited); light: the start (5), then per vertex
+    the connection to the camera (2), a BSDF sample (3) and roulette (1), up to
+    ``bd_depth - 1`` (bdpt's D); at most MAX_STORED_VERTICES vertices each (fresh numbers
     past them)."""
-    v_cam = min(max(max_depth, 0), ps.MAX_STORED_VERTICES)
-    v_light = min(max(max_depth - 1, 0), ps.MAX_STORED_VERTICES)
-    return 2 + 7 * v_cam, (5 + 6 * v_light) if max_depth >= 2 else 0
+    v_cam = ps.MAX_STORED_VERTICES if max_depth < 0 else min(max_depth,
+                                                             ps.MAX_STORED_VERTICES)
+    v_light = min(max(bd_depth - 1, 0), ps.MAX_STORED_VERTICES)
+    return 2 + 7 * v_cam, (5 + 6 * v_light) if bd_depth >= 2 else 0
 
 
 class _Splats:
