@@ -85,14 +85,15 @@ import drjit as dr
 import mitsuba as mi
 
 from ..common import depth_limit, emitted, is_jit, safe_div
-from ..params import MAX_DEPTH_VALUE, Param, ParameterError
+from ..params import Param, ParameterError
 from ..registry import plugin
 from ..sampling import light_selection, roulette
 from ..sampling.subpath import (EmitterTables, LambertTable, LightWalk, Mis, VertexStore,
                                 environment_direction_pdf, finite_weight,
                                 is_delta_sample, reverse_pdf, shading_correction,
                                 spectrum_channels)
-from .base import HIDE_EMITTERS, IntegratorTemplate, SceneError, _on_emitter, skip_emitters
+from .base import (HIDE_EMITTERS, MAX_DEPTH, IntegratorTemplate, SceneError, _on_emitter,
+                   skip_emitters)
 
 #: the most segments a path built by every strategy can have (``bidir_depth``)
 MAX_BDPT_DEPTH = 64
@@ -107,9 +108,7 @@ class BDPT(IntegratorTemplate):
     """Bidirectional path tracing: every (s, t) strategy, balance/power MIS by ratio recurrences."""
 
     PARAMS = (
-        Param("max_depth", "int", -1, min=0, max=MAX_DEPTH_VALUE, allow=(-1,),
-              doc="Longest path depth in segments (-1: unlimited; 1: emitters seen directly), "
-                  "Mitsuba's meaning."),
+        MAX_DEPTH,
         Param("bidir_depth", "int", BIDIR_DEPTH, min=2, max=MAX_BDPT_DEPTH,
               doc="Paths of at most this many segments are built by every strategy (light "
                   "vertices are stored per depth up to it); longer ones, up to max_depth, by "
