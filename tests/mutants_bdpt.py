@@ -96,7 +96,7 @@ MUTANTS = [
      "active &= ~scene.ray_test(si.spawn_ray_to(ds.p), active)", _T),
     # hide_emitters: light vertices on an emitter's surface splatted (the camera cannot see it)
     ("bdpt-hide-light-tracing-onto-emitters", _BDPT,
-     "            active &= ~_on_emitter(si)\n", "", _T),
+     "            active &= ~_on_emitter(scene, si)\n", "", _T),
     # hide_emitters ignored for the environment seen directly
     ("bdpt-hide-env-visible", _BDPT,
      "w_env = dr.select(first, w_seen, w_env)",

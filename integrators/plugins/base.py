@@ -6,7 +6,8 @@ import warnings
 import drjit as dr
 import mitsuba as mi
 
-from ..common import emitted, is_jit
+from ..common import (bind_emitters, emitted, emitter_at, emitter_table, is_jit,
+                      record_once, widen)
 from ..params import MAX_DEPTH_VALUE, Param, read
 
 MAX_DEPTH = Param("max_depth", "int", -1, min=0, max=MAX_DEPTH_VALUE, allow=(-1,),
@@ -37,14 +38,19 @@ class IntegratorTemplate:
 
     def prepare(self, scene):
         """Per-scene set-up, once per scene (sample() calls it; cheap after the first call):
-        :func:`check_scene` and :meth:`scene_warnings`, then the light selection (the
-        integrator's ``lights`` cache, when it has one)."""
+        :func:`check_scene`, :meth:`scene_warnings` and the scene's shape-to-emitter table
+        (:func:`~integrators.common.emitter_table`, bound for this render), then the light
+        selection (the integrator's ``lights`` cache, when it has one)."""
         if getattr(self, "_prepared", None) is not scene:
             check_scene(scene, self.NAME, self.HANDLES_MEDIA)
             self.scene_flags = scene_bsdf_flags(scene)
             for msg in self.scene_warnings(scene):
                 warnings.warn(msg, RuntimeWarning, stacklevel=2)
+            if is_jit():
+                bind_emitters(self, scene, emitter_table(scene))
             self._prepared = scene
+        elif is_jit():
+            bind_emitters(self, scene)
         lights = getattr(self, "lights", None)
         return lights(scene) if lights is not None else None
 
@@ -57,6 +63,8 @@ class IntegratorTemplate:
 
         With ``hide_emitters`` (as Mitsuba's integrators), area emitters are transparent to
         camera rays (the ray goes on to what is behind them) and the environment is black."""
+        ray = mi.Ray3f(ray)
+        ray.time = widen(ray.time, ray.d)    # (the paths' loops record once: record_once)
         if self.params.get("max_depth", -1) == 0:   # Mitsuba's meaning: nothing at all
             return scene.ray_intersect(ray, active), mi.Spectrum(0.0)
         if not self.params.get("hide_emitters", False):
@@ -198,20 +206,22 @@ def has_delta_lights(scene) -> bool:
     return any(mi.has_flag(e.flags(), mi.EmitterFlags.Delta) for e in scene.emitters())
 
 
+@record_once
 @dr.syntax
 def skip_emitters(scene, ray, active):
     """First intersection of ``ray`` that is not on an emitting shape."""
     ray = mi.Ray3f(ray)
+    ray.time = widen(ray.time, ray.d)
     si = scene.ray_intersect(ray, active)
-    skip = mi.Bool(active) & _on_emitter(si)
+    skip = mi.Bool(active) & _on_emitter(scene, si)
     while dr.hint(skip, label="skip emitters"):
         ray = si.spawn_ray(ray.d)
         si = scene.ray_intersect(ray, skip)
-        skip &= _on_emitter(si)
+        skip &= _on_emitter(scene, si)
     return si
 
 
-def _on_emitter(si):
+def _on_emitter(scene, si):
     if is_jit():
-        return si.is_valid() & (si.shape.emitter() != None)  # noqa: E711 (a pointer array)
+        return si.is_valid() & (emitter_at(scene, si) != None)  # noqa: E711 (a pointer array)
     return bool(si.is_valid()) and si.shape is not None and si.shape.emitter() is not None

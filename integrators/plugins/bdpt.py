@@ -84,7 +84,8 @@ from __future__ import annotations
 import drjit as dr
 import mitsuba as mi
 
-from ..common import depth_limit, emitted, is_jit, safe_div
+from ..common import (depth_limit, direction_sample, emitted, emitter_at, is_jit,
+                      record_once, safe_div, widen)
 from ..params import Param, ParameterError
 from ..registry import plugin
 from ..sampling import light_selection, roulette
@@ -341,12 +342,13 @@ class BDPT(IntegratorTemplate):
         active &= dr.any(value != 0)
         if dr.hint(self.hide_emitters, mode="scalar"):
             # the camera sees no emitter, and through them
-            active &= ~_on_emitter(si)
+            active &= ~_on_emitter(scene, si)
             active &= ~_occluded_by_non_emitters(scene, si.spawn_ray_to(ds.p), active)
         else:
             active &= ~scene.ray_test(si.spawn_ray_to(ds.p), active)
         return ds.uv, _to_rgb(value), active
 
+    @record_once
     @dr.syntax
     def camera_walk(self, scene, sel, tables, sensor, sampler, store, lane, ray, sbuf=None,
                     leave_out=None):
@@ -376,9 +378,11 @@ class BDPT(IntegratorTemplate):
         prev_p = mi.Point3f(ray.o)
         prev_n = mi.Normal3f(0.0)
         ray = mi.Ray3f(ray)
+        ray.time = widen(ray.time, ray.d)    # (loop-invariant state as wide as the loop:
+        prefix = widen(prefix, ray.d)        # recorded once, see record_once)
         active = mi.Bool(True)
         valid = mi.Bool(False)
-        while dr.hint(active, label="bdpt camera walk"):
+        while dr.hint(active, label="bdpt camera walk", exclude=[max_depth, ctx]):
             first = depth == 1
             if dr.hint(hide, mode="scalar"):     # area emitters transparent to camera rays
                 si = scene.ray_intersect(ray, active & ~first)
@@ -397,7 +401,7 @@ class BDPT(IntegratorTemplate):
             # last scattering: y0 is a direction, so no d^2 and no cosine at the light end)
             if dr.hint(has_env, mode="scalar"):
                 esc = active & ~si.is_valid()
-                em_env = si.emitter(scene)
+                em_env = emitter_at(scene, si)
                 le_env = emitted(scene, si, esc)
                 esc &= dr.any(le_env != 0)
                 pick_env = sel.pmf_at(it_prev, em_env, esc & ~first)   # next-event est.'s
@@ -426,13 +430,13 @@ class BDPT(IntegratorTemplate):
             dvc *= inv_cos
 
             # s = 0: the camera subpath hits an area light
-            em = si.emitter(scene)
+            em = emitter_at(scene, si)
             le = emitted(scene, si, hit)
             hit_light = hit & dr.any(le != 0)
             _, pos_pdf, _ = tables.lookup(em, hit_light)
             pick = sel.pmf_at(it_prev, em, hit_light & ~first)     # next-event estimation's
             pick_e = sel_e.pmf(em, hit_light)                       # the light subpath's
-            ds_e = mi.DirectionSample3f(scene, si, it_prev)
+            ds_e = direction_sample(scene, si, it_prev)
             p_nee = em.pdf_direction(it_prev, ds_e, hit_light & ~first)
             direct_a = pick * p_nee * cos_in * safe_div(1.0, dist2)
             emission_w = pick_e * pos_pdf * cos_in * dr.inv_pi
@@ -502,6 +506,7 @@ class BDPT(IntegratorTemplate):
             active &= depth <= max_depth
         return L, valid
 
+    @record_once
     @dr.syntax
     def connect(self, scene, store, lane, si, bsdf, beta, dvcm, dvc, depth, active, sbuf=None):
         """Sum over the stored light vertices y_k of the weighted connection z -- y_k."""
@@ -513,7 +518,8 @@ class BDPT(IntegratorTemplate):
         # stored vertex k lies at depth >= k + 1: only k <= max_depth - depth - 2 can connect
         n = dr.minimum(n, dr.select(depth + 1 < max_depth, max_depth - 1 - depth, 0))
         k = mi.UInt32(0)
-        while dr.hint(active & (k < n), label="bdpt connections"):
+        while dr.hint(active & (k < n), label="bdpt connections",
+                      exclude=[active, n, si, bsdf, beta, dvcm, dvc, depth, lane, ctx, ctx_l]):
             act = active & (k < n)
             sy, bsdf_y, beta_y, dvcm_y, dvc_y, depth_y = store.get(lane * store.cap + k, act)
             ok = act & (depth_y + depth + 1 <= max_depth)
@@ -542,6 +548,7 @@ class BDPT(IntegratorTemplate):
         return L
 
 
+@record_once
 @dr.syntax
 def _occluded_by_non_emitters(scene, ray, active):
     """Whether a surface other than an emitting shape lies on ``ray`` (up to ``ray.maxt``):
@@ -549,11 +556,11 @@ def _occluded_by_non_emitters(scene, ray, active):
     transparent."""
     target = ray.o + ray.d * ray.maxt
     si = scene.ray_intersect(ray, active)
-    skip = mi.Bool(active) & _on_emitter(si)
+    skip = mi.Bool(active) & _on_emitter(scene, si)
     while dr.hint(skip, label="bdpt skip emitters"):
         si = scene.ray_intersect(si.spawn_ray_to(target), skip)
-        skip &= _on_emitter(si)
-    return active & si.is_valid() & ~_on_emitter(si)
+        skip &= _on_emitter(scene, si)
+    return active & si.is_valid() & ~_on_emitter(scene, si)
 
 
 class _Buffer:

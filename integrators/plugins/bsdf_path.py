@@ -22,7 +22,7 @@ from __future__ import annotations
 import drjit as dr
 import mitsuba as mi
 
-from ..common import bsdf_at, depth_limit, emitted
+from ..common import bsdf_at, depth_limit, emitted, record_once
 from ..params import Param
 from ..registry import plugin
 from ..sampling.roulette import RR_DEPTH, Roulette
@@ -49,6 +49,7 @@ class BSDFPath(IntegratorTemplate):
                     "lights, so they add nothing to the image (nee_path samples them)"]
         return []
 
+    @record_once
     @dr.syntax
     def sample(self, scene, sampler, ray, medium=None, active=True):
         ctx = mi.BSDFContext()
@@ -63,7 +64,7 @@ class BSDFPath(IntegratorTemplate):
         valid = si.is_valid()
         active &= valid & (1 < max_depth)
 
-        while dr.hint(active, label="bsdf_path"):
+        while dr.hint(active, label="bsdf_path", exclude=[max_depth, ctx]):
             bsdf = bsdf_at(si, ray, active)
             s1, s2 = sampler.next_1d(active), sampler.next_2d(active)
             wo, weight, eta_v = hemisphere_sample(self.hemisphere, ctx, bsdf, si, s1, s2, active)

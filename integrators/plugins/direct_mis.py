@@ -22,7 +22,7 @@ from __future__ import annotations
 import drjit as dr
 import mitsuba as mi
 
-from ..common import bsdf_at, is_jit
+from ..common import bsdf_at, is_jit, record_once
 from ..params import MAX_COUNT, Param, ParameterError
 from ..registry import plugin
 from ..sampling import light_selection, mis
@@ -80,14 +80,16 @@ class DirectMIS(IntegratorTemplate):
                                    act, norm)
         return dr.select(act, weight * L_e, 0.0)
 
+    @record_once
     @dr.syntax
     def more_bsdf_samples(self, scene, sel, sampler, ctx, si, bsdf, active):
         """The sum over BSDF samples 2..N_b of their weighted emission."""
         L = mi.Spectrum(0.0)
         j = mi.UInt32(1)
-        while dr.hint(j < self.bsdf_samples, label="direct_mis BSDF samples"):
+        while dr.hint(j < self.bsdf_samples, label="direct_mis BSDF samples",
+                      exclude=[si, bsdf, ctx]):
             s1, s2 = sampler.next_1d(active), sampler.next_2d(active)
-            if is_jit() or active:
+            if dr.hint(is_jit() or active, mode="scalar"):   # (scalar: a bool)
                 bs, weight = bsdf.sample(ctx, si, s1, s2, active)
                 L += self.bsdf_hit(scene, sel, si, bs, weight, active)
             j += 1

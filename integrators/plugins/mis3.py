@@ -89,7 +89,7 @@ import mitsuba as mi
 import numpy as np
 
 from ..common import any_flag, bsdf_at, bsdf_flags, channel_mean, depth_limit, is_jit, lnot, \
-    luminance, safe_div
+    luminance, record_once, safe_div
 from ..params import Param, ParameterError
 from ..registry import plugin
 from ..sampling import light_selection, mis, roulette
@@ -442,6 +442,7 @@ class MIS3(IntegratorTemplate):
                               learner=self if sel.count > 0 else None)
         return L, valid, []
 
+    @record_once
     @dr.syntax
     def sample_lobes(self, scene, sampler, ray, active):
         """selection=fixed|adaptive: the three techniques at every vertex (the docstring)."""
@@ -464,7 +465,7 @@ class MIS3(IntegratorTemplate):
         depth = mi.UInt32(0)
         active = active & valid & (1 < max_depth)
 
-        while dr.hint(active, label="mis3"):
+        while dr.hint(active, label="mis3", exclude=[max_depth]):
             bsdf = bsdf_at(si, ray, active)
             p1, p2, p3 = self.technique_probs(bsdf, si, has_lights, active)
             # the BSDF's own sample where it has a delta or null part (or no lobe technique has

@@ -37,7 +37,7 @@ import dataclasses
 import drjit as dr
 import mitsuba as mi
 
-from ..common import depth_limit, is_jit
+from ..common import depth_limit, is_jit, record_once
 from ..params import MAX_COUNT, Param, ParameterError
 from ..registry import plugin
 from ..sampling import light_selection, mis, roulette, splitting
@@ -122,6 +122,7 @@ class NEEPath(IntegratorTemplate):
         film.put_block(block)
         return film.develop() if develop else block.tensor()
 
+    @record_once
     @dr.syntax
     def sample(self, scene, sampler, ray, medium=None, active=True):
         """One camera sample (rr=adaptive renders through :meth:`render` instead; called
@@ -137,7 +138,7 @@ class NEEPath(IntegratorTemplate):
         else:
             acc = mi.Spectrum(0.0)
             k = mi.UInt32(0)
-            while dr.hint(k < self.split, label="nee_path split"):
+            while dr.hint(k < self.split, label="nee_path split", exclude=[ray, si, active]):
                 acc += self.reflected(scene, sampler, sel, ray, si, active)
                 k += 1
             L += acc * roulette.split_weight(self.split)

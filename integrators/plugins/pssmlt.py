@@ -119,7 +119,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ..common import depth_limit, emitted, is_jit
+from ..common import depth_limit, emitted, is_jit, record_once
 from ..params import MAX_COUNT, Param, ParameterError
 from ..registry import plugin
 from ..sampling import light_selection, mis, roulette
@@ -493,6 +493,7 @@ class PSSMLT(IntegratorTemplate):
         splat(image, pixel, rgb, dr.any(rgb != 0))
         return image
 
+    @record_once
     @dr.syntax
     def delta_chain_emission(self, scene, ray, si, lane, key):
         """The emission a camera ray reaches through delta scatterings only (mirrors,
@@ -512,7 +513,7 @@ class PSSMLT(IntegratorTemplate):
         max_depth = depth_limit(self.max_depth)
         k = dr.opaque(mi.UInt32, key)
         active = si.is_valid() & (depth < max_depth)
-        while dr.hint(active, label="pssmlt delta chain"):
+        while dr.hint(active, label="pssmlt delta chain", exclude=[k, max_depth, ctx]):
             bsdf = si.bsdf(ray)
             kd = k + depth * 4
             bs, w = bsdf.sample(ctx, si, ps.uniform(lane, kd),
@@ -685,6 +686,7 @@ def kelemen_weights(lum, lum_c, large, scale, pb):
 STEPS_PER_KERNEL = 64
 
 
+@record_once
 def steps(evaluate, st: "ChainState", ids, count: int, image, scale, large_step: float,
           sigma: float):
     """``count`` Metropolis steps of the chains ``ids`` (UInt32, distinct) in ONE kernel: a

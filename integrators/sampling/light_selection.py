@@ -45,7 +45,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ..common import channel_mean, is_jit, safe_div
+from ..common import channel_mean, direction_sample, is_jit, safe_div
 from ..params import Param
 
 MODES = ("uniform", "power", "adaptive", "bvh", "ris")
@@ -387,10 +387,10 @@ class LightSelection:
         :meth:`sample_direction` returned at ``si_from``, if it was called there."""
         if self.count == 0:
             return mi.Float(0.0)
-        emitter = si_hit.emitter(self.scene)
+        ds = direction_sample(self.scene, si_hit, si_from)
+        emitter = ds.emitter
         if not is_jit() and (emitter is None or not active):
             return 0.0
-        ds = mi.DirectionSample3f(self.scene, si_hit, si_from)
         sel = self.pmf_at(si_from, emitter, active, norm)
         pdf = emitter.pdf_direction(si_from, ds, active & (sel > 0))
         return dr.select(active & (sel > 0), pdf * sel, 0.0)

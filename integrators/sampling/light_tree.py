@@ -906,10 +906,11 @@ class ResampledTreeSelection(LightTreeSelection):
             ds, weight = mi.DirectionSample3f(), mi.Spectrum(0.0)
         w_sum, h_y, sel_y = mi.Float(0.0), mi.Float(0.0), mi.Float(0.0)
         k = mi.UInt32(0)
-        while dr.hint(k < m, label="light selection: ris candidates"):
+        while dr.hint(k < m, label="light selection: ris candidates",
+                      exclude=[si, s2, u, active, bsdf, ctx]):
             emitter, sel, _ = self._choose(si, rotated(u, k, m), active, self._traverse)
             ok = active & (sel > 0)
-            if is_jit() or ok:
+            if dr.hint(is_jit() or ok, mode="scalar"):   # (scalar: a bool)
                 ds_k, we_k = emitter.sample_direction(si, rotated_2d(s2, k), ok)
                 ds_k.emitter = emitter
                 f_k = bsdf.eval(ctx, si, si.to_local(ds_k.d), ok)

@@ -80,7 +80,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ..common import depth_limit, emitted, luminance, safe_div
+from ..common import depth_limit, emitted, luminance, record_once, safe_div
 from .learning import RegionGrid
 
 #: bounces whose vertices keep records (statistics of L_r and cost per region)
@@ -401,6 +401,7 @@ class Wavefront:
         dr.eval(ears.grid.stats, ears.coarse.stats)
         return self.L, valid
 
+    @record_once
     @dr.syntax
     def tail(self, scene, sel, sampler, st, limit, recs, cost, seed: int) -> int:
         """The few paths left of a batch, finished in one kernel (a loop over the bounces)
@@ -417,7 +418,7 @@ class Wavefront:
         lum_sum, cost_sum = mi.Float(0.0), mi.Float(0.0)
         rays = mi.UInt32(0)
         active = mi.Bool(True)
-        while dr.hint(active, label="ears tail"):
+        while dr.hint(active, label="ears tail", exclude=[limit, cost, sid, pixel]):
             _, _, si_n, beta, eta, depth, alive, c, k = self.continuation(
                 scene, sel, sampler, si, beta, eta, depth, limit, active)
             dr.scatter_reduce(dr.ReduceOp.Add, self.L, c, sid, mode=DIRECT)

@@ -58,7 +58,7 @@ from __future__ import annotations
 import drjit as dr
 import mitsuba as mi
 
-from ..common import safe_div
+from ..common import record_once, safe_div
 from .roulette import Roulette
 
 
@@ -373,6 +373,7 @@ class LightWalk:
         beta = dr.select(active, beta, 0.0)
         return emitter, ray, beta, dvc, pdf_e, area, inf, ps.p, ps.n, cos0, p_dir, active
 
+    @record_once
     @dr.syntax
     def walk(self, scene, sel, tables, sampler, store: VertexStore, lane, active,
              on_vertex=None, nee_sel=None):

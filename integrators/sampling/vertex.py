@@ -36,7 +36,8 @@ from typing import NamedTuple, Sequence
 import drjit as dr
 import mitsuba as mi
 
-from ..common import bsdf_at, bsdf_flags, depth_limit, emitted, is_jit, lnot, safe_div
+from ..common import (bsdf_at, bsdf_flags, depth_limit, emitted, is_jit, lnot, record_once,
+                      safe_div, widen)
 from .light_selection import rotated_2d
 from .mis import Heuristic
 from .roulette import Roulette
@@ -124,14 +125,15 @@ class VertexEstimator:
         return dr.select(ls.visible, f * ls.weight * self.light_weight(ls, q_bsdf, light_scale),
                          0.0)
 
+    @record_once
     @dr.syntax
     def light_estimate(self, scene, sel, sampler, ctx, si, bsdf, active):
         """1/N_l sum over N_l light samples (densities against N_b BSDF samples)."""
         L = mi.Spectrum(0.0)
         first = (sel.sample_1d(sampler, active), sampler.next_2d(active))
         j = mi.UInt32(0)
-        while dr.hint(j < self.n_l, label="light samples"):
-            if is_jit() or active:
+        while dr.hint(j < self.n_l, label="light samples", exclude=[si, bsdf, ctx, first]):
+            if dr.hint(is_jit() or active, mode="scalar"):   # (scalar: a bool)
                 ls = self.light_sample(scene, sel, sampler, si, active, bsdf, ctx,
                                        self.stratum(sel, sampler, first, j, self.n_l, active))
                 f, pdf_b = bsdf.eval_pdf(ctx, si, si.to_local(ls.ds.d), ls.visible)
@@ -186,6 +188,7 @@ class VertexEstimator:
         bs, weight = bsdf.sample(ctx, si, s1, s2, active)
         return Direct(L, bs, weight, None, None, None, None)
 
+    @record_once
     @dr.syntax
     def extra_light_samples(self, scene, sel, sampler, ctx, si, bsdf, active, m, first):
         """The light samples beyond the first where the lane's light-sample count ``m`` (an
@@ -198,7 +201,8 @@ class VertexEstimator:
         more = active & (m > 1.0)
         count = dr.select(more, mi.UInt32(m), 1)
         j = mi.UInt32(1)
-        while dr.hint(more & (j < count), label="extra light samples"):
+        while dr.hint(more & (j < count), label="extra light samples",
+                      exclude=[si, bsdf, ctx, first, m, more, count]):
             ls = self.light_sample(scene, sel, sampler, si, more, bsdf, ctx,
                                    self.stratum(sel, sampler, first, j, m, more))
             f, pdf_b = bsdf.eval_pdf(ctx, si, si.to_local(ls.ds.d), ls.visible)
@@ -232,6 +236,7 @@ class VertexEstimator:
         return (weighted, L_e, pdf_l) if with_light_pdf else weighted
 
     # ---- the path: the vertex estimate at every vertex ----------------------------------------
+    @record_once
     @dr.syntax
     def path(self, scene, sampler, sel, ray, si, active, max_depth: int, learner=None):
         """One path's estimate of the light reflected at its first hit ``si`` (the emission
@@ -250,7 +255,9 @@ class VertexEstimator:
         active = mi.Bool(active)
         learn = learner is not None
 
-        while dr.hint(active, label="path"):
+        si = mi.SurfaceInteraction3f(si)      # (the caller's is not changed)
+        si.time = widen(si.time, si.p)
+        while dr.hint(active, label="path", exclude=[limit, ctx]):
             bsdf = bsdf_at(si, ray, active)
             p_l, cell = None, None
             if dr.hint(learn, mode="scalar"):
