@@ -4,6 +4,8 @@ r"""Light-tree benchmark (issue 15): ``light_selection=bvh`` against Mitsuba's `
     python -m benchmarks.light_tree [--lights 64 1024 4096 16384] [--res 64] [--spp 4]
         [--repeats 3] [--ref-spp 512] [--adaptive-max 4096] [--glossy N ...] [--few]
         [--few-res 128] [--out DIR]
+    python -m benchmarks.light_tree --setup [--lights N ...] [--repeats 3] [--out DIR]
+    python -m benchmarks.light_tree --flat [--spp 16] [--repeats 3] [--out DIR]
 
 Scenes: ``scenes/tools/make_light_field.py`` (N sphere lights over a floor, powers over three
 decades), built at run time, one fresh process per N (every emitter alive in a process is traced
@@ -47,6 +49,18 @@ Measured per scene, side by side in one process:
 * **efficiency vs path** = (relMSE x time per sample) of ``path`` / that of the method, with the
   summed relMSE (the issue's measure; the light fields hide their emitters) and, in its own
   column, with the per-pixel one.
+
+``--setup`` measures only the set-up: per N, ``--repeats`` fresh processes, each timing the
+first render (1 spp) of ``path`` and then of each selection's fresh integrator, and a later
+render of each (the per-call overhead); it writes ``setup.json`` and ``setup.md`` (medians of
+the per-process ratios to ``path``'s first render).
+
+``--flat`` separates the two causes of a time per sample growing with N: the light field of
+64 lights, the field of 16,384 spheres of which only 64 (every 256th) emit (the others plain
+diffuse spheres), and the field of 16,384 lights; time per sample as above for ``path``,
+``bvh`` and ``ris``.  From the first to the second only the geometry grows (a floor 16x as
+wide, 256x the spheres), from the second to the third only the number of lights.  Writes
+``flat.json`` and ``flat.md``.
 
 Writes ``light_tree.json``, ``light_tree.md`` (the table) and ``light_tree_cost.png`` (time per
 sample and set-up against N) under ``--out`` (default ``benchmarks/results/light_tree``).
@@ -202,6 +216,154 @@ def measure(scene_name: str, n_lights, res: int, spp: int, repeats: int, ref_spp
     return out
 
 
+def _child(args, what: str):
+    """Run ``python -m benchmarks.light_tree ARGS`` in a fresh process (every emitter alive in
+    a process is traced into its kernels) and return its RESULT, or None (its output's tail
+    and a line naming ``what`` on stderr)."""
+    cmd = [sys.executable, "-m", "benchmarks.light_tree", *map(str, args)]
+    p = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True)
+    line = [ln for ln in p.stdout.splitlines() if ln.startswith("RESULT ")]
+    if p.returncode != 0 or not line:
+        sys.stderr.write(p.stdout[-2000:] + p.stderr[-4000:])
+        print(f"light_tree benchmark: {what} failed", file=sys.stderr)
+        return None
+    return json.loads(line[0][7:])
+
+
+def measure_setup(n_lights: int, methods=("path", "bvh", "ris")) -> dict:
+    """Set-up only (``--setup``), in this process: the first and a later 1-spp render of each
+    method's fresh integrator, ``path`` first, as :func:`measure` times them."""
+    import drjit as dr
+    import mitsuba as mi
+    mi.set_variant("llvm_ad_rgb")
+    import integrators  # noqa: F401  (registers the plugins)
+    sys.path.insert(0, str(REPO / "scenes" / "tools"))
+    import make_light_field
+    scene = mi.load_dict(make_light_field.scene_dict(n_lights, res=64, spp=16))
+    all_methods = _methods(n_lights, 0, 2)
+    out = {"lights": n_lights, "methods": {}}
+    for name in methods:
+        integ = mi.load_dict(all_methods[name])
+        walls = []
+        for seed in range(2):
+            t = time.perf_counter()
+            dr.eval(mi.render(scene, integrator=integ, spp=1, seed=seed))
+            dr.sync_thread()
+            walls.append(time.perf_counter() - t)
+        out["methods"][name] = {"setup_s": walls[0], "overhead_s": walls[1]}
+    return out
+
+
+def setup_report(results) -> str:
+    """Markdown table of ``--setup`` runs (one list of per-process results per N)."""
+    lines = ["| lights | processes | first render (s), median: path / bvh / ris | "
+             "first render / path's, median (range): bvh / ris | later render (s), median: "
+             "path / bvh / ris |", "|---|---|---|---|---|"]
+    for runs in results:
+        med = {m: statistics.median(r["methods"][m]["setup_s"] for r in runs)
+               for m in ("path", "bvh", "ris")}
+        later = {m: statistics.median(r["methods"][m]["overhead_s"] for r in runs)
+                 for m in ("path", "bvh", "ris")}
+        ratio = {m: [r["methods"][m]["setup_s"] / r["methods"]["path"]["setup_s"]
+                     for r in runs] for m in ("bvh", "ris")}
+        lines.append(
+            f"| {runs[0]['lights']:,} | {len(runs)} | "
+            + " / ".join(f"{med[m]:.1f}" for m in ("path", "bvh", "ris")) + " | "
+            + " / ".join(f"{statistics.median(ratio[m]):.2f} ({min(ratio[m]):.2f}-"
+                         f"{max(ratio[m]):.2f})" for m in ("bvh", "ris")) + " | "
+            + " / ".join(f"{later[m]:.1f}" for m in ("path", "bvh", "ris")) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def _run_setup(a, argv) -> int:
+    results = []
+    for n in a.lights:
+        runs = []
+        for _ in range(a.repeats):
+            r = _child(["--one-setup", n], f"set-up at {n} lights")
+            if r is None:
+                return 1
+            runs.append(r)
+        results.append(runs)
+        print(setup_report(results[-1:]).splitlines()[2], flush=True)
+    a.out.mkdir(parents=True, exist_ok=True)
+    (a.out / "setup.json").write_text(json.dumps(results, indent=1))
+    md = ("# Light tree benchmark: set-up\n\n`python -m benchmarks.light_tree " + " ".join(
+        sys.argv[1:] if argv is None else argv) + "`\n\n" + setup_report(results))
+    (a.out / "setup.md").write_text(md)
+    print(md)
+    return 0
+
+
+def measure_flat(n_spheres: int, n_emitting: int, spp: int, repeats: int) -> dict:
+    """Time per sample (``--flat``) of path, bvh and ris on the field of ``n_spheres``
+    spheres of which ``n_emitting`` (evenly spread in the generator's order) emit."""
+    import drjit as dr
+    import mitsuba as mi
+    mi.set_variant("llvm_ad_rgb")
+    import integrators  # noqa: F401  (registers the plugins)
+    sys.path.insert(0, str(REPO / "scenes" / "tools"))
+    import make_light_field
+    d = make_light_field.scene_dict(n_spheres, res=64, spp=spp)
+    step = n_spheres // n_emitting
+    for i in range(n_spheres):
+        if i % step:
+            del d[f"light{i}"]["emitter"]
+    scene = mi.load_dict(d)
+    pixels = 64 * 64
+    methods = {k: v for k, v in _methods(n_emitting, 0, 2).items() if k in ("path", "bvh", "ris")}
+    integs = {k: mi.load_dict(v) for k, v in methods.items()}
+    dr.set_flag(dr.JitFlag.KernelHistory, True)
+
+    def kernel_s(integ, s, seed):
+        dr.kernel_history()
+        dr.eval(mi.render(scene, integrator=integ, spp=s, seed=seed))
+        dr.sync_thread()
+        return _kernel_seconds(dr)
+
+    for integ in integs.values():          # compile
+        kernel_s(integ, spp, 0)
+    lo, hi = {k: [] for k in integs}, {k: [] for k in integs}
+    for r in range(repeats):
+        for k, integ in integs.items():
+            lo[k].append(kernel_s(integ, spp, 100 + r))
+            hi[k].append(kernel_s(integ, spp * TIME_FACTOR, 200 + r))
+    return {"spheres": n_spheres, "lights": len(scene.emitters()), "spp": spp,
+            "time_per_sample_us": {k: (min(hi[k]) - min(lo[k])) /
+                                   (pixels * spp * (TIME_FACTOR - 1)) * 1e6 for k in integs}}
+
+
+def _run_flat(a, argv) -> int:
+    rows = []
+    for n, k in ((64, 64), (16384, 64), (16384, 16384)):
+        r = _child(["--one-flat", n, k, "--spp", a.spp, "--repeats", a.repeats],
+                   f"--flat {n} {k}")
+        if r is None:
+            return 1
+        rows.append(r)
+        print(rows[-1], flush=True)
+    cols = ("path", "bvh", "ris")
+    lines = ["| spheres | lights | time per sample (us): " + " / ".join(cols) + " |",
+             "|---|---|---|"]
+    for r in rows:
+        lines.append(f"| {r['spheres']:,} | {r['lights']:,} | " + " / ".join(
+            f"{r['time_per_sample_us'][c]:.3g}" for c in cols) + " |")
+    t = [r["time_per_sample_us"] for r in rows]
+    lines.append("")
+    for c in cols:
+        lines.append(f"- `{c}`: x{t[1][c] / t[0][c]:.2f} from the geometry (64 lights), "
+                     f"x{t[2][c] / t[1][c]:.2f} from the number of lights (same geometry), "
+                     f"x{t[2][c] / t[0][c]:.2f} in all")
+    a.out.mkdir(parents=True, exist_ok=True)
+    (a.out / "flat.json").write_text(json.dumps(rows, indent=1))
+    md = ("# Light tree benchmark: time per sample, geometry against number of lights\n\n"
+          "`python -m benchmarks.light_tree " + " ".join(
+              sys.argv[1:] if argv is None else argv) + "`\n\n" + "\n".join(lines) + "\n")
+    (a.out / "flat.md").write_text(md)
+    print(md)
+    return 0
+
+
 def _build_time(n: int, repeats: int = 3) -> float:
     """Best of ``repeats`` builds of the tree over n synthetic lights (random boxes, normals,
     powers over three decades)."""
@@ -326,7 +488,14 @@ def main(argv=None) -> int:
     ap.add_argument("--glossy", type=int, nargs="*", default=[], metavar="N",
                     help="also light fields of N lights over a glossy floor (rough aluminium)")
     ap.add_argument("--out", type=Path, default=OUT)
+    ap.add_argument("--setup", action="store_true",
+                    help="measure only the set-up (first render) of path, bvh and ris")
     ap.add_argument("--one", nargs=2, metavar=("SCENE", "N"), help=argparse.SUPPRESS)
+    ap.add_argument("--one-setup", type=int, metavar="N", help=argparse.SUPPRESS)
+    ap.add_argument("--flat", action="store_true",
+                    help="time per sample: geometry grown with the lights vs lights alone")
+    ap.add_argument("--one-flat", type=int, nargs=2, metavar=("SPHERES", "LIGHTS"),
+                    help=argparse.SUPPRESS)
     a = ap.parse_args(argv)
     for k in ("res", "few_res", "spp", "repeats", "ref_spp"):
         if getattr(a, k) < 1:
@@ -334,6 +503,16 @@ def main(argv=None) -> int:
     for k in ("lights", "glossy"):
         if any(n < 1 for n in getattr(a, k)):
             ap.error(f"--{k}: {getattr(a, k)} not allowed; every count at least 1")
+    if a.one_setup:
+        print("RESULT " + json.dumps(measure_setup(a.one_setup)))
+        return 0
+    if a.setup:
+        return _run_setup(a, argv)
+    if a.one_flat:
+        print("RESULT " + json.dumps(measure_flat(*a.one_flat, a.spp, a.repeats)))
+        return 0
+    if a.flat:
+        return _run_flat(a, argv)
     if a.one:
         scene, n = a.one
         r = measure(scene, None if n == "-" else int(n), a.res, a.spp, a.repeats, a.ref_spp,
@@ -348,17 +527,12 @@ def main(argv=None) -> int:
         jobs += [("veach_mis", "-"), ("cornell_box", "-")]
     results = []
     for scene, n in jobs:
-        cmd = [sys.executable, "-m", "benchmarks.light_tree", "--one", scene, n,
-               "--res", str(a.res), "--spp", str(a.spp), "--repeats", str(a.repeats),
-               "--ref-spp", str(a.ref_spp), "--adaptive-max", str(a.adaptive_max),
-               "--few-res", str(a.few_res)]
-        p = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True)
-        line = [ln for ln in p.stdout.splitlines() if ln.startswith("RESULT ")]
-        if p.returncode != 0 or not line:
-            sys.stderr.write(p.stdout[-2000:] + p.stderr[-4000:])
-            print(f"light_tree benchmark: {scene} {n} failed", file=sys.stderr)
+        r = _child(["--one", scene, n, "--res", a.res, "--spp", a.spp, "--repeats", a.repeats,
+                    "--ref-spp", a.ref_spp, "--adaptive-max", a.adaptive_max,
+                    "--few-res", a.few_res], f"{scene} {n}")
+        if r is None:
             return 1
-        results.append(json.loads(line[0][7:]))
+        results.append(r)
         print(table(results[-1:]).splitlines()[2], flush=True)
     a.out.mkdir(parents=True, exist_ok=True)
     (a.out / "light_tree.json").write_text(json.dumps(results, indent=1))
