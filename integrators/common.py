@@ -87,8 +87,7 @@ def emitter_table(scene):
 
 
 #: (the integrator that bound a table, the id of the scene it bound it for, its
-#: :func:`emitter_table`),
-#: replaced as one tuple.  The integrator is held weakly and the scene not at all: a scene kept
+#: :func:`emitter_table`), replaced as one tuple.  The integrator is held weakly and the scene not at all: a scene kept
 #: alive after its last use puts its shapes and emitters into every later kernel's virtual
 #: calls (two alike constant environments made the LLVM module invalid: "invalid redefinition
 #: of function").  While the integrator lives it holds its scene (``_prepared``), so the
