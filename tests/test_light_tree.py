@@ -205,6 +205,31 @@ def test_tree_invariants(n):
     _check_tree(tree, n)
 
 
+def test_device_record_bounds_the_node():
+    """The device record a level reads (:class:`DeviceTree`, 12 words per node): its sphere
+    (the float32 weighted centre c, radius r) holds every corner of the node's box, so the
+    bound made from it is a bound; its ``info`` is the node's; its cone and power are the
+    tree's."""
+    n = 300
+    rng = np.random.default_rng(7)
+    c = rng.uniform(-50, 50, (n, 3))
+    half = rng.uniform(0, 2, (n, 3))
+    w = rng.normal(size=(n, 3))
+    w /= np.linalg.norm(w, axis=1)[:, None]
+    tree = lt.build(c - half, c + half, w, rng.uniform(-1, 1, n), np.zeros(n),
+                    rng.random(n) < 0.2, 10 ** rng.uniform(0, 3, n))
+    dev = lt.DeviceTree(tree)
+    rec = np.array(dev.packed, np.float32).reshape(tree.size, len(dev.FIELDS))
+    centre, r = rec[:, :3].astype(np.float64), rec[:, 3].astype(np.float64)
+    for k in range(8):
+        corner = np.where(np.array([(k >> a) & 1 for a in range(3)], bool), tree.hi, tree.lo)
+        assert np.all(np.linalg.norm(corner - centre, axis=1) <= r)
+    assert np.array_equal(rec[:, 10].view(np.uint32), tree.info)
+    assert np.allclose(rec[:, 4:7], tree.w, atol=1e-6)
+    assert np.allclose(np.abs(rec[:, 9]), tree.phi, rtol=1e-6)
+    assert np.array_equal(rec[:, 9] < 0, tree.two)
+
+
 def test_tree_invariants_same_place():
     """All lights at one point (no valid SAOH split): median splits, still a full tree."""
     n = 40
