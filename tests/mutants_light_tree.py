@@ -33,7 +33,7 @@ MUTANTS = [
     # the device record's sphere: pbrt's half diagonal, but about the weighted centre (not
     # the box's): it no longer holds the box, the bound is no bound
     ("tree-record-radius-half-diagonal", T,
-     "r = np.sqrt(((corners - centre.astype(np.float64)) ** 2).sum(-1).max(0))",
+     "r = np.sqrt((far ** 2).sum(-1))",
      "r = 0.5 * np.sqrt(((tree.hi - tree.lo) ** 2).sum(-1))", TESTS),
     # the probability of the tree (1 - p_inf) left out of the reported pmf of a tree light
     ("tree-pmf-without-tree-probability", T,

@@ -25,7 +25,7 @@ theta_w the angle between the cone's axis and the direction from the centre to x
 theta' = max(theta_w - theta_o - theta_b, 0) the smallest angle between the cone and the
 direction to x, and theta_i the angle between that
 direction and the line of n (|cos|: the receiver may transmit).  I = 0 only when no point of the
-box can emit towards x within the cone (theta' >= theta_e + 1e-3 rad of slack for float32); the
+sphere (and so of the box) can emit towards x within the cone (theta' >= theta_e + 1e-3 rad of slack for float32); the
 receiver factor is floored at 1e-3, so a light that can contribute always has I > 0 and can be
 chosen (the estimator stays unbiased without a defensive mixture).
 
@@ -70,7 +70,9 @@ or sphere lights, a ceiling of equal panels) the orientation measure drops out e
 the largest angle to it, unions of cones follow pbrt's ``Union(DirectionCone, DirectionCone)``.  A node
 with no valid split (all centroids equal), or deeper than 40, is split at the median count, so
 the depth stays below 64 for up to 2^24 lights.  Nodes are numbered level by level with the two
-children adjacent, and flattened into Dr.Jit arrays (boxes rounded outwards to float32).
+children adjacent, and flattened into Dr.Jit arrays (a 12-word record per node: the
+weighted centre and the radius of a sphere around it that holds the box, rounded up in
+float32, the cone, phi and the node's child index; :class:`DeviceTree`).
 
 **Resampling** (``light_selection=ris``, :class:`ResampledTreeSelection`): the tree's bound is
 loosest at its upper levels (a node's Phi / d^2 to its centre underrates a cluster that holds a
@@ -163,8 +165,8 @@ def mean_axis_cone(w, cos_o, group, n_groups, theta_o=None, exact=True):
     """A cone around the axes of every group (cos = +inf for empty groups): the normalised sum
     of the member axes, widened to the largest angle to a member plus its own theta_o (the
     entire sphere when the sum vanishes).  ``theta_o``: arccos(cos_o) if already known;
-    ``exact`` False: the angle to a member by arccos of the dot product, cheaper and up to
-    1e-8 rad short (for the build's split cost, which only compares candidate splits)."""
+    ``exact`` False: the angle to a member by arccos of the dot product, cheaper, off by up to
+    about 1.5e-8 rad either way (for the build's split cost, which only compares candidate splits)."""
     s = np.zeros((n_groups, 3))
     for k in range(3):
         s[:, k] = np.bincount(group, weights=w[:, k], minlength=n_groups)
@@ -430,10 +432,6 @@ def _best_splits(rows, seg, S, offs, orient=True):
 
 
 # ---------------------------------------------------------------------------------------------
-def _down(x):
-    return np.nextafter(x.astype(np.float32), np.float32(-np.inf))
-
-
 def _up(x):
     return np.nextafter(x.astype(np.float32), np.float32(np.inf))
 
@@ -469,9 +467,9 @@ class DeviceTree:
         cos_o = np.clip(tree.cos_o, -1, 1).astype(np.float32)
         centre = tree.centre.astype(np.float32)
         # the farthest corner of the (float64) box from the (float32) centre, rounded up
-        corners = np.stack([np.where(np.array([(k >> a) & 1 for a in range(3)], bool),
-                                     tree.hi, tree.lo) for k in range(8)])
-        r = np.sqrt(((corners - centre.astype(np.float64)) ** 2).sum(-1).max(0))
+        c64 = centre.astype(np.float64)
+        far = np.maximum(tree.hi - c64, c64 - tree.lo)
+        r = np.sqrt((far ** 2).sum(-1))
         r = _up(r * (1 + 1e-6))
         cols = dict(cx=centre[:, 0], cy=centre[:, 1], cz=centre[:, 2], r=r,
                     wx=tree.w[:, 0], wy=tree.w[:, 1], wz=tree.w[:, 2], cos_o=cos_o,
