@@ -16,7 +16,7 @@ around any such normal (pi/2 for Lambertian emitters), plus a two-sided flag (th
 with d the distance from x to the power-weighted centre of the node's lights (pbrt-v4 takes the
 box centre; the weighted centre ranks clusters better: the second moment of the light choice
 for unshadowed direct light on the 1,024-light field fell from 1.83x to 1.60x the ideal's, mean
-over 100 floor points; selection by power alone: 38x), r the radius of the sphere around that
+over 100 floor points, both with the box-centred sphere; selection by power alone: 38x), r the radius of the sphere around that
 centre that holds the node's box (pbrt-v4's sphere is centred on the box, its radius the half
 diagonal; one centre for both keeps the device record to 12 words, see :class:`DeviceTree`), the
 clamp max(d^2, r) (pbrt's: a length, not its square, so nodes that contain x still rank their
@@ -25,8 +25,8 @@ theta_w the angle between the cone's axis and the direction from the centre to x
 theta' = max(theta_w - theta_o - theta_b, 0) the smallest angle between the cone and the
 direction to x, and theta_i the angle between that
 direction and the line of n (|cos|: the receiver may transmit).  I = 0 only when no point of the
-sphere (and so of the box) can emit towards x within the cone (theta' >= theta_e + 1e-3 rad of slack for float32); the
-receiver factor is floored at 1e-3, so a light that can contribute always has I > 0 and can be
+sphere (and so of the box) can emit towards x within the cone (theta' >= theta_e + 1e-3 rad
+of slack for float32); the receiver factor is floored at 1e-3, so a light that can contribute always has I > 0 and can be
 chosen (the estimator stays unbiased without a defensive mixture).
 
 **Traversal** (:meth:`DeviceTree.traverse`, :meth:`LightTreeSelection.choose`): from the root, the child c of a node is chosen with
@@ -166,7 +166,7 @@ def mean_axis_cone(w, cos_o, group, n_groups, theta_o=None, exact=True):
     of the member axes, widened to the largest angle to a member plus its own theta_o (the
     entire sphere when the sum vanishes).  ``theta_o``: arccos(cos_o) if already known;
     ``exact`` False: the angle to a member by arccos of the dot product, cheaper, off by up to
-    about 1.5e-8 rad either way (for the build's split cost, which only compares candidate splits)."""
+    about 1.5e-8 rad either way (for the build's split cost, which only compares splits)."""
     s = np.zeros((n_groups, 3))
     for k in range(3):
         s[:, k] = np.bincount(group, weights=w[:, k], minlength=n_groups)
