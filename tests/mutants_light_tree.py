@@ -30,6 +30,11 @@ MUTANTS = [
     ("tree-box-union-dropped", T,
      "tree.lo[nd] = np.minimum(tree.lo[a], tree.lo[b2])",
      "tree.lo[nd] = tree.lo[a]", TESTS),
+    # the split cost without the right side's term: every split cuts off the first bucket,
+    # the tree twice as deep and its choices worse
+    ("tree-split-cost-left-side-only", T,
+     "    cost = (left + right) * kr[:, :, None]",
+     "    cost = left * kr[:, :, None]", TESTS),
     # the device record's sphere: pbrt's half diagonal, but about the weighted centre (not
     # the box's): it no longer holds the box, the bound is no bound
     ("tree-record-radius-half-diagonal", T,

@@ -589,6 +589,22 @@ def test_spectral_variant():
         integrators.set_variant("llvm_ad_rgb")
 
 
+def test_split_cost_keeps_tree_shallow():
+    """The SAOH split cost (buckets swept from both sides) keeps a tree over lights spread
+    evenly through a cube near balanced: mean leaf depth at most log2(N) + 1.5 for 4,096
+    lights, with random orientations and with one shared cone.  Deterministic; measured
+    12.26 and 12.13 against the bound 13.5 (a cost that leaves out the right side: 25)."""
+    n = 4096
+    rng = np.random.default_rng(1)
+    c = rng.uniform(-10, 10, (n, 3))
+    w = rng.normal(size=(n, 3))
+    w /= np.linalg.norm(w, axis=1)[:, None]
+    phi = 10 ** rng.uniform(0, 3, n)
+    for axes in (w, np.tile([0.0, 0.0, 1.0], (n, 1))):
+        tree = lt.build(c - 0.05, c + 0.05, axes, np.ones(n), np.zeros(n), np.zeros(n, bool), phi)
+        assert tree.depth.mean() <= np.log2(n) + 1.5, tree.depth.mean()
+
+
 def test_selection_quality_light_field():
     """On 1,024 sphere lights (scenes/tools/make_light_field.py) the tree's choice is close to
     the ideal one (p proportional to each light's unshadowed irradiance, exact for a sphere

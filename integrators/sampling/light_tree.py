@@ -164,9 +164,10 @@ def _area(lo, hi):
 def mean_axis_cone(w, cos_o, group, n_groups, theta_o=None, exact=True):
     """A cone around the axes of every group (cos = +inf for empty groups): the normalised sum
     of the member axes, widened to the largest angle to a member plus its own theta_o (the
-    entire sphere when the sum vanishes).  ``theta_o``: arccos(cos_o) if already known;
-    ``exact`` False: the angle to a member by arccos of the dot product, cheaper, off by up to
-    about 1.5e-8 rad either way (for the build's split cost, which only compares splits)."""
+    entire sphere when the sum vanishes).  ``theta_o``: arccos(cos_o) if already known (a
+    number if the same for all); ``exact`` False: the angle to a member by arccos of the dot
+    product, cheaper, off by up to about 1.5e-8 rad either way (for the build's split cost,
+    which only compares splits)."""
     s = np.zeros((n_groups, 3))
     for k in range(3):
         s[:, k] = np.bincount(group, weights=w[:, k], minlength=n_groups)
@@ -178,10 +179,21 @@ def mean_axis_cone(w, cos_o, group, n_groups, theta_o=None, exact=True):
         theta_o = np.arccos(np.clip(cos_o, -1, 1))
     if exact:
         ang = _angle_between(axis[group], w) + theta_o
+        widest = np.zeros(n_groups)
+        np.maximum.at(widest, group, ang)
+    elif np.ndim(theta_o) == 0:
+        # one theta_o for all (area lights: 0): the widest angle is that of the smallest dot
+        # product (arccos decreases), so one arccos per group instead of one per member
+        ax = axis.T.copy()
+        dot = ax[0][group] * w[:, 0] + ax[1][group] * w[:, 1] + ax[2][group] * w[:, 2]
+        least = np.ones(n_groups)
+        np.minimum.at(least, group, dot)
+        widest = np.arccos(np.clip(least, -1, 1)) + theta_o
+        widest[count == 0] = 0.0
     else:
         ang = np.arccos(np.clip(np.einsum("ij,ij->i", axis[group], w), -1, 1)) + theta_o
-    widest = np.zeros(n_groups)
-    np.maximum.at(widest, group, ang)
+        widest = np.zeros(n_groups)
+        np.maximum.at(widest, group, ang)
     cos = np.where(widest >= math.pi, -1.0, np.cos(np.minimum(widest, math.pi)))
     cos = np.where(ok, cos, -1.0)
     cos = np.where(count > 0, cos, np.inf)
@@ -226,12 +238,13 @@ def build(lo, hi, w, cos_o, cos_e, two, phi) -> Tree:
     tree = Tree(2 * n - 1, n)
     centroid = 0.5 * (lo + hi)
     perm = np.arange(n)
-    # every light's attributes in one row (columns: ROW), kept in the order of perm, so a
+    # every light's attributes in one column (rows: ROW), kept in the order of perm, so a
     # level reads them in order instead of gathering seven arrays at random (the gathers
-    # were a third of the build)
-    rows_all = np.concatenate([lo, hi, w, centroid, phi[:, None], cos_o[:, None],
-                               cos_e[:, None], np.arccos(np.clip(cos_o, -1, 1))[:, None]],
-                              axis=1)
+    # were a third of the build), and an attribute's values lie contiguous for the
+    # per-bucket reductions (strided, they cost twice as much)
+    rows_all = np.ascontiguousarray(np.concatenate(
+        [lo, hi, w, centroid, phi[:, None], cos_o[:, None], cos_e[:, None],
+         np.arccos(np.clip(cos_o, -1, 1))[:, None]], axis=1).T)
     # the active segments of this level: perm[start:end] are the lights of node `node`
     start, end = np.array([0]), np.array([n])
     node = np.array([0])
@@ -255,11 +268,12 @@ def build(lo, hi, w, cos_o, cos_e, two, phi) -> Tree:
         offs = np.concatenate([[0], np.cumsum(length)[:-1]])
         pos = np.repeat(start - offs, length) + np.arange(length.sum())
         ids = perm[pos]
-        rows = rows_all[pos]
+        # until the first leaf every light is active and pos is 0..n-1: no gather needed
+        rows = rows_all if len(pos) == n else rows_all[:, pos]
         seg = np.repeat(np.arange(S), length)
-        c = rows[:, ROW["c"]]
-        cmin = np.minimum.reduceat(c, offs, axis=0)
-        cmax = np.maximum.reduceat(c, offs, axis=0)
+        c = rows[ROW["c"]]                                              # (3, lights)
+        cmin = np.minimum.reduceat(c, offs, axis=1).T                   # (S, 3)
+        cmax = np.maximum.reduceat(c, offs, axis=1).T
         # SAOH over the nodes of more than SMALL lights; the others (and nodes without a valid
         # split) at the median of their longest centroid extent
         big = length > SMALL
@@ -269,28 +283,36 @@ def build(lo, hi, w, cos_o, cos_e, two, phi) -> Tree:
                               (big & (length <= ORIENT_MIN), False)):
             if not group.any() or level >= MEDIAN_DEPTH:
                 continue
-            sel = group[seg]
             bs = np.nonzero(group)[0]
-            remap = np.cumsum(group) - 1
-            k, d = _best_splits(rows[sel], remap[seg[sel]], len(bs),
-                                np.concatenate([[0], np.cumsum(length[group])[:-1]]), orient)
+            if len(bs) == S:
+                k, d = _best_splits(rows, seg, S, offs, cmin, cmax, orient)
+            else:
+                sel = group[seg]
+                remap = np.cumsum(group) - 1
+                k, d = _best_splits(rows[:, sel], remap[seg[sel]], len(bs),
+                                    np.concatenate([[0], np.cumsum(length[group])[:-1]]),
+                                    cmin[bs], cmax[bs], orient)
             split_k[bs], split_dim[bs] = k, d
         use_sah = split_k >= 0
         sd = np.where(use_sah, split_dim, np.argmax(cmax - cmin, axis=1))
-        coord = c[np.arange(len(ids)), sd[seg]]
+        sds = sd[seg]
+        coord = np.where(sds == 0, c[0], np.where(sds == 1, c[1], c[2]))
         ext = (cmax - cmin)[np.arange(S), sd]
-        b = _bucket(coord, cmin[np.arange(S), sd][seg], ext[seg])
+        b = _bucket(coord, cmin[np.arange(S), sd], ext, seg)
         # lights of median-split nodes in order of their coordinate, then the first half left
         med = ~use_sah[seg]
         if med.any():
             m = np.nonzero(med)[0]
             o = m[np.lexsort((coord[m], seg[m]))]
-            ids[m], b[m], rows[m] = ids[o], b[o], rows[o]
+            ids[m], b[m], rows[:, m] = ids[o], b[o], rows[:, o]
         rank = np.arange(len(ids)) - offs[seg]
         side = np.where(use_sah[seg], b > split_k[seg], rank >= (length // 2)[seg])
         order = np.argsort(2 * seg + side, kind="stable")
         perm[pos] = ids[order]
-        rows_all[pos] = rows[order]
+        if len(pos) == n:
+            rows_all = rows[:, order]
+        else:
+            rows_all[:, pos] = rows[:, order]
         n_left = np.bincount(seg, weights=~side, minlength=S).astype(np.int64)
         # children: adjacent, numbered level by level
         first = next_id + 2 * np.arange(S)
@@ -342,92 +364,98 @@ def _reduce_at(ufunc, init, n, key, v):
     return out
 
 
-def _bucket(c, cmin, ext):
-    b = np.floor(BUCKETS * (c - cmin) / np.where(ext > 0, ext, 1.0)).astype(np.int64)
-    return np.clip(b, 0, BUCKETS - 1)
+def _bucket(c, cmin, ext, seg):
+    """The bucket (0 .. BUCKETS - 1) of each centroid coordinate c (lights of segment seg,
+    whose centroids span cmin + [0, ext]; arrays of segments indexed along their first axis,
+    transposed if c is (3, lights))."""
+    ext = np.where(ext > 0, ext, 1.0)
+    cmin, ext = (cmin[seg].T, ext[seg].T) if c.ndim == 2 else (cmin[seg], ext[seg])
+    b = (BUCKETS * (c - cmin) / ext).astype(np.int64)     # c >= cmin: truncation is floor
+    return np.minimum(b, BUCKETS - 1, out=b)
 
 
-#: the columns of a light's row in :func:`build`
+#: the rows of the build's attribute table (one column a light) in :func:`build`
 ROW = {"lo": slice(0, 3), "hi": slice(3, 6), "w": slice(6, 9), "c": slice(9, 12), "phi": 12,
        "cos_o": 13, "cos_e": 14, "theta_o": 15}
 
 
-def _best_splits(rows, seg, S, offs, orient=True):
+def _best_splits(rows, seg, S, offs, cmin, cmax, orient=True):
     """Per segment: (bucket boundary k, axis) of the cheapest SAOH split, k = -1 for none;
-    ``rows``: the segments' lights (columns: ROW); ``orient`` False: without the orientation
-    measure (surface area and power only)."""
-    lo_i, hi_i, w_i, c = (rows[:, ROW[k]] for k in ("lo", "hi", "w", "c"))
-    phi_i, co_i, ce_i, theta_i = (np.ascontiguousarray(rows[:, ROW[k]])
-                                  for k in ("phi", "cos_o", "cos_e", "theta_o"))
-    cmin = np.minimum.reduceat(c, offs, axis=0)
-    cmax = np.maximum.reduceat(c, offs, axis=0)
-    nlo = np.minimum.reduceat(lo_i, offs, axis=0)
-    nhi = np.maximum.reduceat(hi_i, offs, axis=0)
+    ``rows``: the segments' lights, one column each (rows: ROW); ``cmin``, ``cmax`` (S, 3):
+    the bounds of their centroids; ``orient`` False: without the orientation measure
+    (surface area and power only)."""
+    lo_i, hi_i, w_i = (rows[ROW[k]].T for k in ("lo", "hi", "w"))
+    phi_i, co_i, ce_i, theta_i = (rows[ROW[k]] for k in ("phi", "cos_o", "cos_e", "theta_o"))
+    nlo = np.minimum.reduceat(rows[ROW["lo"]], offs, axis=1).T
+    nhi = np.maximum.reduceat(rows[ROW["hi"]], offs, axis=1).T
     diag = nhi - nlo
-    best = np.full(S, np.inf)
-    best_k = np.full(S, -1)
-    best_d = np.full(S, -1)
+    ext = cmax - cmin                                                   # (S, 3)
     nb = S * BUCKETS
     # one cone for every light (all point lights, or flat lights facing the same way): the
     # orientation measure is the same for every split and drops out of the comparison
     same_cone = not orient or bool(np.all(w_i == w_i[0]) and np.all(co_i == co_i[0])
                                    and np.all(ce_i == ce_i[0]))
+    theta = theta_i[0] if theta_i.min() == theta_i.max() else theta_i
+    # the buckets' contents along each axis, index [axis, bucket, segment] (a bucket of
+    # every segment in one block, for the sweep below)
+    b3 = _bucket(rows[ROW["c"]], cmin, ext, seg)                        # (3, lights)
+    count, bphi = np.zeros((3, nb)), np.zeros((3, nb))
+    blo, bhi = np.zeros((3, nb, 3)), np.zeros((3, nb, 3))
+    if not same_cone:
+        bw, bco, bce = np.zeros((3, nb, 3)), np.zeros((3, nb)), np.zeros((3, nb))
     for dim in range(3):
-        ext = cmax[:, dim] - cmin[:, dim]
-        b = _bucket(c[:, dim], cmin[seg, dim], ext[seg])
-        key = seg * BUCKETS + b
-        count = np.bincount(key, minlength=nb)
-        bphi = np.bincount(key, weights=phi_i, minlength=nb)
-        blo = _reduce_at(np.minimum, np.inf, nb, key, lo_i)
-        bhi = _reduce_at(np.maximum, -np.inf, nb, key, hi_i)
+        key = b3[dim] * S + seg
+        count[dim] = np.bincount(key, minlength=nb)
+        bphi[dim] = np.bincount(key, weights=phi_i, minlength=nb)
+        blo[dim] = _reduce_at(np.minimum, np.inf, nb, key, lo_i)
+        bhi[dim] = _reduce_at(np.maximum, -np.inf, nb, key, hi_i)
+        if not same_cone:
+            bw[dim], bco[dim] = mean_axis_cone(w_i, co_i, key, nb, theta_o=theta, exact=False)
+            bce[dim] = _reduce_at(np.minimum, 1.0, nb, key, ce_i[:, None])[:, 0]
+    count, bphi = (a.reshape(3, BUCKETS, S) for a in (count, bphi))
+    blo, bhi = (a.reshape(3, BUCKETS, S, 3) for a in (blo, bhi))
+    if not same_cone:
+        bco, bce = bco.reshape(3, BUCKETS, S), bce.reshape(3, BUCKETS, S)
+        bw = bw.reshape(3, BUCKETS, S, 3)
+
+    # cost of the union of buckets 0..i (left) and of buckets i+1..last (right) for every
+    # boundary i: one sweep over the six (axis, direction) pairs at once, [pair, segment, i]
+    def step(a, i):
+        """Bucket i of the three axes sweeping up, bucket last - i sweeping down."""
+        return np.concatenate([a[:, i], a[:, BUCKETS - 1 - i]])
+    out = np.zeros((6, S, BUCKETS - 1))
+    acc_lo = np.full((6, S, 3), np.inf)
+    acc_hi = np.full((6, S, 3), -np.inf)
+    acc_w = np.broadcast_to([0.0, 0.0, 1.0], (6, S, 3))
+    acc_c = np.full((6, S), np.inf)
+    acc_phi = np.zeros((6, S))
+    acc_ce = np.ones((6, S))
+    for i in range(BUCKETS - 1):
+        acc_lo = np.minimum(acc_lo, step(blo, i))
+        acc_hi = np.maximum(acc_hi, step(bhi, i))
+        acc_phi = acc_phi + step(bphi, i)
+        area = _area(acc_lo, np.maximum(acc_hi, acc_lo))
         if same_cone:
-            bw = np.broadcast_to(w_i[0], (nb, 3))
-            bco = np.where(np.arange(nb) >= 0, co_i[0], 0.0)
-            bce = np.full(nb, ce_i[0])
-        else:
-            bw, bco = mean_axis_cone(w_i, co_i, key, nb, theta_o=theta_i, exact=False)
-            bce = np.full(nb, 1.0)
-            np.minimum.at(bce, key, ce_i)
-        shp = (S, BUCKETS)
-        count, bphi, bco, bce = (a.reshape(shp) for a in (count, bphi, bco, bce))
-        blo, bhi, bw = (a.reshape(S, BUCKETS, 3) for a in (blo, bhi, bw))
-
-        def sweep(order):
-            """Cost of the union of buckets order[0..i] for every i (S, len(order))."""
-            out = np.zeros((S, len(order)))
-            acc_lo = np.full((S, 3), np.inf)
-            acc_hi = np.full((S, 3), -np.inf)
-            acc_w = np.tile([0.0, 0.0, 1.0], (S, 1))
-            acc_c = np.full(S, np.inf)
-            acc_phi = np.zeros(S)
-            acc_ce = np.ones(S)
-            for i, k in enumerate(order):
-                acc_lo = np.minimum(acc_lo, blo[:, k])
-                acc_hi = np.maximum(acc_hi, bhi[:, k])
-                acc_phi = acc_phi + bphi[:, k]
-                if same_cone:
-                    out[:, i] = acc_phi * _area(acc_lo, np.maximum(acc_hi, acc_lo))
-                    continue
-                acc_ce = np.minimum(acc_ce, bce[:, k])
-                acc_w, acc_c = cone_union(acc_w, acc_c, bw[:, k], bco[:, k])
-                cc = np.where(np.isfinite(acc_c), acc_c, 1.0)
-                area = _area(acc_lo, np.maximum(acc_hi, acc_lo))
-                out[:, i] = acc_phi * m_omega(cc, acc_ce) * area
-            return out
-
-        left = sweep(range(BUCKETS - 1))                      # buckets 0..k
-        right = sweep(range(BUCKETS - 1, 0, -1))[:, ::-1]     # buckets k+1..11
-        n_left = np.cumsum(count, axis=1)[:, :-1]
-        total = count.sum(1)[:, None]
-        kr = diag.max(1) / np.maximum(diag[:, dim], 1e-12 * np.maximum(diag.max(1), 1e-30))
-        cost = (left + right) * kr[:, None]
-        cost = np.where((n_left > 0) & (n_left < total) & (ext[:, None] > 0), cost, np.inf)
-        k = np.argmin(cost, axis=1)
-        ck = cost[np.arange(S), k]
-        better = ck < best
-        best = np.where(better, ck, best)
-        best_k = np.where(better, k, best_k)
-        best_d = np.where(better, dim, best_d)
+            out[:, :, i] = acc_phi * area
+            continue
+        acc_ce = np.minimum(acc_ce, step(bce, i))
+        acc_w, acc_c = cone_union(acc_w, acc_c, step(bw, i), step(bco, i))
+        cc = np.where(np.isfinite(acc_c), acc_c, 1.0)
+        out[:, :, i] = acc_phi * m_omega(cc, acc_ce) * area
+    left, right = out[:3], out[3:, :, ::-1]
+    n_left = np.cumsum(count, axis=1)[:, :-1].transpose(0, 2, 1)        # (3, S, boundary)
+    total = count.sum(1)[:, :, None]
+    dmax = diag.max(1)
+    kr = dmax / np.maximum(diag.T, 1e-12 * np.maximum(dmax, 1e-30))    # (3, S)
+    cost = (left + right) * kr[:, :, None]
+    ok = (n_left > 0) & (n_left < total) & (ext.T[:, :, None] > 0) & ~np.isnan(cost)
+    cost = np.where(ok, cost, np.inf)
+    # the first cheapest (axis, boundary), axes in order x, y, z
+    flat = cost.transpose(1, 0, 2).reshape(S, -1)
+    j = np.argmin(flat, axis=1)
+    none = ~np.isfinite(flat[np.arange(S), j])
+    best_d = np.where(none, -1, j // (BUCKETS - 1))
+    best_k = np.where(none, -1, j % (BUCKETS - 1))
     return best_k, best_d
 
 
