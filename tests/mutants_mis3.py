@@ -17,6 +17,23 @@ MUTANTS = [
     # the learned allocation's variance model back to M - mu^2 (negative wherever both
     # techniques share the mean: every allocation then looked free of variance)
     ("allocation-variance-minus-mean-squared", "integrators/plugins/mis3.py",
-     "np.maximum(second - mean_l ** 2 / c - (mean - mean_l) ** 2, 0.0)",
-     "np.maximum(second - mean ** 2, 0.0)", ["test_mis3_learned.py"]),
+     "np.maximum(second - spread * (mean_l ** 2 / c + (mean - mean_l) ** 2), 0.0)",
+     "np.maximum(second - spread * mean ** 2, 0.0)", ["test_mis3_learned.py"]),
+    # the learning statistics of a BSDF-sampled emission hit with the vertex's weight applied
+    # twice (the pre-update throughput aliased by the in-place update: the bug before stop 30)
+    ("learned-hit-weight-twice", "integrators/sampling/vertex.py",
+     "learner.record_hit(cell, beta, L_e, pdf_e, d.bs.pdf, p_l,",
+     "learner.record_hit(cell, beta * d.weight, L_e, pdf_e, d.bs.pdf, p_l,",
+     ["test_mis3_learned.py"]),
+    # the recorded paths ignored: the rest of the pixel sample back to the stand-in
+    ("learned-rest-of-path-ignored", "integrators/plugins/mis3.py",
+     "have = n_p >= LEARN_MIN_PATHS", "have = n_p < 0", ["test_mis3_learned.py"]),
+    # the pooled variance taken as the vertex's noise (the spread between points ignored)
+    ("learned-spread-ignored", "integrators/plugins/mis3.py",
+     "var = allocation_variance(second, mean, mean_l, spread=spread)",
+     "var = allocation_variance(second, mean, mean_l, spread=1.0)", ["test_mis3_learned.py"]),
+    # one light estimate squared instead of the product of two independent ones
+    ("learned-pair-not-independent", "integrators/plugins/mis3.py",
+     "self.grid.add(idx, {PATH_STATS + 4: z[0] * z[1]}, act)",
+     "self.grid.add(idx, {PATH_STATS + 4: z[0] * z[0]}, act)", ["test_mis3_learned.py"]),
 ]

@@ -62,10 +62,18 @@ With p(1) = p(2) = 0 (``p_light = 1``) the continuation is the BSDF's own sample
   (f L_e)^2 / ((p p_l + p_b) Q0) for every candidate p (Q0 the density it was drawn with), so all
   candidates are estimated from the same samples, and so is each technique's share of the mean
   (mu_l(p), mu_b(p)); between passes each region takes the candidate minimising the variance
-  V(p) = M(p) - mu_l^2 / max(p, 1) - mu_b^2 (:func:`allocation_variance`), plus 0.3 V(1)
-  for the rest of the path (``LEARN_REST_VAR``), times the cost 1 + 0.5 p (a light sample
-  costs about half a vertex),
-  keeping p = 1 unless another candidate promises 20 % less, and p(3) = 1 until the region has
+  x cost of the whole pixel sample, (V(p) + V_rest) (1 + 0.5 p + C_rest) (a light sample
+  costs about half a vertex).  V(p) = M(p) - s (mu_l^2 / max(p, 1) + mu_b^2)
+  (:func:`allocation_variance`) is the vertex's noise: a region pools many points, and the
+  variation of the mean between them is no noise that light samples could reduce; s = E[m(x)^2]
+  / mu^2 measures it, E[m(x)^2] from the product of two independent light estimates at each
+  recording vertex (:meth:`MIS3.record_pair`, two extra shadow rays on the recorded vertices
+  of the learning pass).  V_rest and C_rest, the rest of the pixel sample, are measured: each
+  recording path is followed to its end and its estimate's square, mean and cost (rays plus
+  0.5 per expected light sample) go to the cell of its first recording vertex; V_rest is their
+  variance less the vertex's pooled variance at the allocation they were recorded with, C_rest
+  their cost less the vertex's (until a region has 32 such paths: 0.3 V(1) and 0,
+  ``LEARN_REST_VAR``).  A region keeps p = 1 unless another candidate promises 20 % less, and p(3) = 1 until the region has
   64 recorded visits and 32 non-zero samples.  The candidates start at 0.05: the floor that
   keeps delta lights (which only light sampling reaches) and every other light reachable.
   **Candidates above one allocate light samples** (Sbert and Havran's variance-optimal sample
@@ -89,7 +97,7 @@ import mitsuba as mi
 import numpy as np
 
 from ..common import any_flag, bsdf_at, bsdf_flags, channel_mean, depth_limit, is_jit, lnot, \
-    luminance, record_once, safe_div
+    luminance, record_once, safe_div, widen
 from ..params import Param, ParameterError
 from ..registry import plugin
 from ..sampling import light_selection, mis, roulette
@@ -107,10 +115,10 @@ ONE = LEARNED_P.index(1.0)
 #: cost of a light sample (shadow ray, light and BSDF evaluation) relative to a vertex without
 #: one (measured: nee_path 0.089 s against bsdf_path 0.06 s per pass on veach_mis)
 LIGHT_COST = 0.5
-#: the rest of the path in the objective (variance x cost of the pixel estimate, not only of
-#: this vertex's direct light): its cost in vertex units, and its variance as a multiple of the
-#: direct estimate's variance at p(3) = 1.  The per-vertex statistics do not see the rest of
-#: the path, so its variance is a stand-in: with the variance model of allocation_variance,
+#: the vertex's own cost in vertex units (a ray), and the stand-ins for the rest of the pixel
+#: sample where a region has fewer than LEARN_MIN_PATHS recorded paths: no cost, and a variance
+#: of LEARN_REST_VAR times the vertex's at p(3) = 1.  History of the stand-in (before the rest
+#: was measured): with the variance model of allocation_variance,
 #: 0 allocates up to 4 light samples wherever they lower the vertex's variance (veach_mis 1.45x
 #: `path`, but the Cornell box 0.68x and small_light 0.58x, whose noise is indirect or in the
 #: camera's view of the light), 1 allocates too little for veach_mis (0.82x); 0.3 keeps every
@@ -118,6 +126,14 @@ LIGHT_COST = 0.5
 #: or two runs each, within the noise of each other; benchmarks/results/mis3/variance)
 LEARN_REST_COST = 1.0
 LEARN_REST_VAR = 0.3
+#: paths recorded in a region (at their first recording vertex) before their measured variance
+#: and cost stand for the rest of the pixel sample (before: the LEARN_REST_* stand-ins)
+LEARN_MIN_PATHS = 32
+#: the statistics of a region: per candidate M(c), then the mean, visits and hits, then per
+#: candidate mu_l(c) (``_learn``), then from PATH_STATS the recorded paths' second moment, mean,
+#: cost and count (``record_path``) and the product of the pairs of light estimates
+#: (``record_pair``)
+PATH_STATS = 2 * len(LEARNED_P) + 3
 #: visits a region needs before its learned probability replaces the adaptive one
 LEARN_MIN_VISITS = 64
 #: non-zero light samples or emission hits a region needs before it leaves p(3) = 1
@@ -134,7 +150,7 @@ LEARN_MARGIN = 0.8
 LEARN_SETTLED = 0.05
 
 
-def allocation_variance(second, mean, mean_l, candidates=LEARNED_P):
+def allocation_variance(second, mean, mean_l, candidates=LEARNED_P, spread=1.0):
     r"""Variance of a vertex's direct-light estimate for each candidate allocation c, from the
     statistics of :meth:`MIS3._learn` (per region: rows; per candidate: columns).
 
@@ -159,7 +175,8 @@ def allocation_variance(second, mean, mean_l, candidates=LEARNED_P):
     mean_l = np.asarray(mean_l, dtype=np.float64)
     cand = [float(x) for x in candidates]
     c = np.maximum(np.array(cand), 1.0)[None, :]
-    var = np.maximum(second - mean_l ** 2 / c - (mean - mean_l) ** 2, 0.0)
+    spread = np.asarray(spread, dtype=np.float64).reshape(-1, 1) if np.ndim(spread) else spread
+    var = np.maximum(second - spread * (mean_l ** 2 / c + (mean - mean_l) ** 2), 0.0)
     # a count c > 1 between integers is rounded to floor(c) or ceil(c) light samples, each
     # count's estimate unbiased: the variance is the mixture (1 - t) V(floor) + t V(ceil)
     for j, x in enumerate(cand):
@@ -223,7 +240,7 @@ class MIS3(IntegratorTemplate):
     # ---- selection=learned: the light-sample probability per region ------------------------
     def scene_warnings(self, scene):
         if self.learned:   # a new scene: learn from scratch
-            self.grid = RegionGrid(scene, stats=2 * len(LEARNED_P) + 3)
+            self.grid = RegionGrid(scene, stats=PATH_STATS + 5)
             self.settled = False
             self._learn_passes = 0
         return []
@@ -301,22 +318,48 @@ class MIS3(IntegratorTemplate):
         x (cost of the vertex), from the statistics of every pass so far (see the docstring)."""
         st = self.grid.statistics()
         k = len(LEARNED_P)
+        old = self.grid.table()
+        live = np.nonzero(st[:, k + 1] > 0)[0]   # the cells ever visited (the others keep -1)
+        st = st[live]
         n = st[:, k + 1]
         # a region leaves p(3) = 1 only on enough visits and enough non-zero samples: the
         # second moments of small p are heavy-tailed and read low on a few samples
         ok = (n >= LEARN_MIN_VISITS) & (st[:, k + 2] >= LEARN_MIN_HITS)
         nn = np.where(ok, n, 1.0)[:, None]
-        var = allocation_variance(st[:, :k] / nn, st[:, k] / nn[:, 0], st[:, k + 3:] / nn)
+        second, mean, mean_l = st[:, :k] / nn, st[:, k] / nn[:, 0], st[:, k + 3:PATH_STATS] / nn
+        # the squared mean over the region's points (two independent light estimates at each
+        # recording vertex) against the square of the region's mean: the share of the pooled
+        # statistics that is variation of the mean between points, not noise
+        sq = st[:, PATH_STATS + 4] / nn[:, 0]
+        spread = np.where(mean > 0, np.clip(sq / np.maximum(mean, 1e-30) ** 2, 1.0, 1e6), 1.0)
+        pooled = allocation_variance(second, mean, mean_l)
+        var = allocation_variance(second, mean, mean_l, spread=spread)
         cost = LEARN_REST_COST + LIGHT_COST * np.array(LEARNED_P)[None, :]
-        j = (var + LEARN_REST_VAR * var[:, ONE:ONE + 1]) * cost
+        # the rest of the pixel sample: the variance and cost of the paths through the region
+        # less this vertex's share at the allocation they were recorded with (its nearest
+        # candidate); where too few paths were recorded, the stand-ins LEARN_REST_*
+        n_p = st[:, PATH_STATS + 3]
+        have = n_p >= LEARN_MIN_PATHS
+        npp = np.where(have, n_p, 1.0)
+        v_pix = np.maximum(st[:, PATH_STATS] / npp - (st[:, PATH_STATS + 1] / npp) ** 2, 0.0)
+        c_pix = st[:, PATH_STATS + 2] / npp
+        now = old[live]
+        u = np.argmin(np.abs(np.log(np.where(now > 0, now, 1.0))[:, None]
+                             - np.log(np.array(LEARNED_P))[None, :]), axis=1)
+        rows = np.arange(len(u))
+        v_rest = np.where(have, np.maximum(v_pix - pooled[rows, u], 0.0),
+                          LEARN_REST_VAR * var[:, ONE])
+        c_rest = np.where(have, np.maximum(c_pix - cost[0, u], 0.0), 0.0)
+        j = (var + v_rest[:, None]) * (cost + c_rest[:, None])
         arg = np.argmin(j, axis=1)
         keep_one = j[np.arange(len(arg)), arg] > LEARN_MARGIN * j[:, ONE]
         best = np.where(keep_one, 1.0, np.array(LEARNED_P, dtype=np.float32)[arg])
-        table = np.where(ok, best, -1.0)
+        table = np.full(len(old), -1.0, dtype=np.float32)
+        table[live] = np.where(ok, best, -1.0)
         # settled: the decisions that changed carry less than LEARN_SETTLED of the visits
         def used(t):   # the p(3) a vertex uses (1 where nothing is learned yet)
             return np.log(np.where(t > 0, t, 1.0))
-        changed = n[np.abs(used(table) - used(self.grid.table())) > 0.2].sum()
+        changed = n[np.abs(used(table[live]) - used(now)) > 0.2].sum()
         # (and most visits are in regions that have learned: else more passes are needed)
         self.settled = bool(n.sum() > 0 and changed < LEARN_SETTLED * n.sum() and
                             n[ok].sum() >= 0.5 * n.sum())
@@ -348,12 +391,59 @@ class MIS3(IntegratorTemplate):
                     dr.maximum(p3, 1.0))
 
     def record_hit(self, cell, beta_weight, L_e, pdf_l, pdf_b, p3, active):
-        """Statistics of emission found by the BSDF sample (beta_weight: beta f cos / p_b)."""
+        """Statistics of emission found by the BSDF sample (beta_weight: beta f cos / p_b after
+        the vertex's roulette, so that the survivors' values stand for the paths it ended)."""
         cell, record = cell
         if record is None:
             return
         value = luminance(beta_weight * pdf_b * L_e)
         self._learn(cell, value, pdf_l, p3, pdf_b, mi.Bool(False), active & record)
+
+    def path_start(self, like):
+        """The state that follows a path while recording (None otherwise): the cell of its
+        first recording vertex, whether it has one, and its cost so far in vertex units (the
+        camera ray: 1)."""
+        if not self.recording:
+            return None
+        return (widen(mi.UInt32(0), like.x), widen(mi.Bool(False), like.x),
+                widen(mi.Float(1.0), like.x))
+
+    def path_vertex(self, track, cell, p3, active):
+        """The path state after a vertex (its cost: a ray and p3 light samples)."""
+        if track is None or cell[1] is None:
+            return track
+        (where, on, cost), (idx, record) = track, cell
+        first = record & lnot(on)
+        return (dr.select(first, idx, where), on | record,
+                cost + dr.select(active, 1.0 + LIGHT_COST * p3, 0.0))
+
+    def record_path(self, track, L):
+        """Statistics of a whole path (the luminance of its estimate, and its cost) in the
+        cell of its first recording vertex: the variance and cost of the pixel sample."""
+        if track is None:
+            return
+        where, on, cost = track
+        value = luminance(L)
+        self.grid.add(where, {PATH_STATS: value * value, PATH_STATS + 1: value,
+                              PATH_STATS + 2: cost, PATH_STATS + 3: mi.Float(1.0)}, on)
+
+    def record_pair(self, scene, sel, sampler, si, bsdf, cell, beta, active):
+        """Two independent light samples at a recording vertex, for the statistics only: the
+        product of their estimates of the vertex's direct light estimates its squared mean at
+        this point (the pooled statistics' variation between points, told apart from noise)."""
+        idx, record = cell
+        if record is None:
+            return
+        act = active & record
+        if not is_jit() and not act:
+            return
+        ctx = mi.BSDFContext()
+        z = []
+        for _ in range(2):
+            ls = VertexEstimator.light_sample(scene, sel, sampler, si, act, bsdf, ctx)
+            f = bsdf.eval(ctx, si, si.to_local(ls.ds.d), ls.visible)
+            z.append(dr.select(ls.visible, luminance(beta * f * ls.weight), 0.0))
+        self.grid.add(idx, {PATH_STATS + 4: z[0] * z[1]}, act)
 
     def _learn(self, cell, value, pdf_l, p3, q_b, delta, active, count=1.0):
         # M(p) = int I^2 / (p p_l + q_b): each sample adds I^2 / ((p p_l + q_b) Q0), Q0 the

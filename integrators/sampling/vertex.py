@@ -243,9 +243,11 @@ class VertexEstimator:
         seen there excluded): at every vertex beta [light estimate + weighted emission found by
         the BSDF sample], then roulette.  ``learner`` (optional) gives each vertex its
         light-sample probability (``learner.light_probability(si, sampler, active)`` -> (p, where
-        to record)) and
-        is told what the light sample and the BSDF sample found (``record_light``,
-        ``record_hit``), so it can learn that probability per region between passes."""
+        to record)) and is told what the light sample and the BSDF sample found
+        (``record_light``, ``record_hit``), so it can learn that probability per region between
+        passes; it also follows the whole path (``path_start``, ``path_vertex``,
+        ``record_path``: the path's estimate and cost, the variance and cost of the pixel
+        sample that a vertex's decision is one part of)."""
         ctx = mi.BSDFContext()
         limit = depth_limit(max_depth)
         L = mi.Spectrum(0.0)
@@ -257,16 +259,18 @@ class VertexEstimator:
 
         si = mi.SurfaceInteraction3f(si)      # (the caller's is not changed)
         si.time = widen(si.time, si.p)
+        track = learner.path_start(si.p) if learn else None
         while dr.hint(active, label="path", exclude=[limit, ctx]):
             bsdf = bsdf_at(si, ray, active)
             p_l, cell = None, None
             if dr.hint(learn, mode="scalar"):
                 p_l, cell = learner.light_probability(si, sampler, active)
+                track = learner.path_vertex(track, cell, p_l, active)
             d = self.direct(scene, sel, sampler, ctx, si, bsdf, active, p_l)
             L += beta * d.L
             if dr.hint(learn, mode="scalar"):
                 learner.record_light(cell, beta, d, p_l)
-            beta_prev = beta
+                learner.record_pair(scene, sel, sampler, si, bsdf, cell, beta, active)
             beta *= d.weight
             eta *= d.bs.eta
             depth += 1
@@ -281,9 +285,11 @@ class VertexEstimator:
                                             with_light_pdf=True)
             L += dr.select(active, beta * L_w, 0.0)
             if dr.hint(learn, mode="scalar"):
-                learner.record_hit(cell, beta_prev * d.weight, L_e, pdf_e, d.bs.pdf, p_l,
+                learner.record_hit(cell, beta, L_e, pdf_e, d.bs.pdf, p_l,
                                    active & lnot(delta))
             active &= si.is_valid() & (depth + 1 < limit)
+        if learn:
+            learner.record_path(track, L)
         return L
 
     # ---- 4. roulette ----------------------------------------------------------------------
