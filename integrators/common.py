@@ -90,9 +90,10 @@ def emitter_table(scene):
 #: :func:`emitter_table`), replaced as one tuple.  The integrator is held weakly and the
 #: scene not at all: a scene kept alive after its last use puts its shapes and emitters into
 #: every later kernel's virtual calls (two alike constant environments made the LLVM module
-#: invalid: "invalid redefinition of function").  While the integrator lives it holds its scene (``_prepared``), so the
-#: identity check in :func:`emitter_at` is exact; a binding whose integrator is gone, or that
-#: another thread replaced with another scene's, is not used (the virtual call instead).
+#: invalid: "invalid redefinition of function").  While the integrator lives it holds its
+#: scene (``_prepared``), so the identity check in :func:`emitter_at` is exact; a binding
+#: whose integrator is gone, or that another thread replaced with another scene's, is not used
+#: (the virtual call instead).
 _BOUND = (None, None, None)
 #: each integrator's table, kept outside the integrator: an array attribute of ``self`` becomes
 #: state of every symbolic loop whose body reads ``self``, and one narrower than the loop makes

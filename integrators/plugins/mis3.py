@@ -73,9 +73,10 @@ With p(1) = p(2) = 0 (``p_light = 1``) the continuation is the BSDF's own sample
   0.5 per expected light sample) go to the cell of its first recording vertex; V_rest is their
   variance less the vertex's pooled variance at the allocation they were recorded with, C_rest
   their cost less the vertex's (until a region has 32 such paths: 0.3 V(1) and 0,
-  ``LEARN_REST_VAR``).  A region keeps p = 1 unless another candidate promises 20 % less, and p(3) = 1 until the region has
-  64 recorded visits and 32 non-zero samples.  The candidates start at 0.05: the floor that
-  keeps delta lights (which only light sampling reaches) and every other light reachable.
+  ``LEARN_REST_VAR``).  A region keeps p = 1 unless another candidate promises 20 % less,
+  and p(3) = 1 until the region has 64 recorded visits and 32 non-zero samples.  The
+  candidates start at 0.05: the floor that keeps delta lights (which only light sampling
+  reaches) and every other light reachable.
   **Candidates above one allocate light samples** (Sbert and Havran's variance-optimal sample
   allocation for MIS): an expected count n is rounded stochastically to m = floor(n) or
   ceil(n) light samples, averaged, each weighted at the effective density m p_l (the

@@ -177,11 +177,7 @@ def mean_axis_cone(w, cos_o, group, n_groups, theta_o=None, exact=True):
     axis = np.where(ok[:, None], s / np.maximum(length, 1e-30)[:, None], [0.0, 0.0, 1.0])
     if theta_o is None:
         theta_o = np.arccos(np.clip(cos_o, -1, 1))
-    if exact:
-        ang = _angle_between(axis[group], w) + theta_o
-        widest = np.zeros(n_groups)
-        np.maximum.at(widest, group, ang)
-    elif np.ndim(theta_o) == 0:
+    if not exact and np.ndim(theta_o) == 0:
         # one theta_o for all (area lights: 0): the widest angle is that of the smallest dot
         # product (arccos decreases), so one arccos per group instead of one per member
         ax = axis.T.copy()
@@ -191,7 +187,8 @@ def mean_axis_cone(w, cos_o, group, n_groups, theta_o=None, exact=True):
         widest = np.arccos(np.clip(least, -1, 1)) + theta_o
         widest[count == 0] = 0.0
     else:
-        ang = np.arccos(np.clip(np.einsum("ij,ij->i", axis[group], w), -1, 1)) + theta_o
+        ang = (_angle_between(axis[group], w) if exact else
+               np.arccos(np.clip(np.einsum("ij,ij->i", axis[group], w), -1, 1))) + theta_o
         widest = np.zeros(n_groups)
         np.maximum.at(widest, group, ang)
     cos = np.where(widest >= math.pi, -1.0, np.cos(np.minimum(widest, math.pi)))
