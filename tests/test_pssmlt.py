@@ -234,6 +234,26 @@ def test_image_mean_matches_path(which, estimator):
                  bootstrap=131072, estimator=estimator)
 
 
+@pytest.mark.parametrize("estimator", ["path", "bdpt"])
+@pytest.mark.parametrize("selection", ["bvh", "ris"])
+def test_light_selection_of_many_lights_matches_path(selection, estimator):
+    """The lights chosen by the light tree (``bvh``) or by resampling its candidates (``ris``,
+    two numbers per choice, so the primary vector's layout grows by one per vertex) on 64
+    sphere lights of powers over three decades, the lights hidden from the camera (their
+    directly seen emission is rendered apart, by camera rays, and its noise would hide the
+    chains').  H0 as test_image_mean_matches_path (one block over the 16x16 image, Welch t,
+    Sidak over channels, alpha DEFAULT_ALPHA; power guard 0.75 %: a 5 % bias gives
+    |t| >= 6.7, the critical value is about 4.9)."""
+    scene = mi.load_file(str(SCENES / "light_field_64.xml"), res=16)
+    ours = renders(scene, pssmlt(max_depth=3, bootstrap=65536, estimator=estimator,
+                                 light_selection=selection, hide_emitters=True), 16, 64, 11)
+    ref = renders(scene, mi.load_dict({"type": "path", "max_depth": 3, "hide_emitters": True}),
+                  32, 1024, 100003)
+    r = image_test(ours, ref, block=16)
+    assert r.passed, f"H0 ({r.h0}) rejected: {r}"
+    assert r.rel_se < 0.0075, f"too noisy to see the bias: {r}"
+
+
 @pytest.mark.parametrize("which", ["cornell", "glass_shade"])
 def test_default_estimator_at_unbounded_depth_matches_path(which):
     """max_depth -1 and estimator auto (the defaults): the chains drive bdpt, whose paths past

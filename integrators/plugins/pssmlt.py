@@ -36,12 +36,15 @@ image's mean luminance), Metropolis sampling draws u with density I(u)/b, and pi
   path estimator's large I are the caustic paths Metropolis is there to explore: capped at 8,
   its caustic errors double, hence no cap there (``BDPT_IMPORTANCE_CAP`` has the figures).
 * **The estimator** is the path estimator of ``nee_path`` with its defaults (power-heuristic MIS
-  between one light sample and the BSDF sample at every vertex, light selection by power,
-  throughput roulette from depth 5): the shared :meth:`VertexEstimator.path`, driven by a
+  between one light sample and the BSDF sample at every vertex, throughput roulette from
+  depth 5), the light chosen by ``light_selection`` (default ``power``; ``bvh`` and ``ris``
+  for many lights: a light choice is a function of the chain's coordinates like any other,
+  ris's two numbers each get a coordinate): the shared :meth:`VertexEstimator.path`, driven by a
   :class:`PrimarySampler` that reads the chain's primary vector instead of a sampler.
 * **``estimator=bdpt``** drives every strategy of :mod:`integrators.plugins.bdpt` instead (same
   ``max_depth``, any; bdpt's default ``bidir_depth``, so paths longer than 16 segments take
-  s = 0 and s = 1 only; ``hide_emitters``; light selection by power):
+  s = 0 and s = 1 only; ``hide_emitters``; ``light_selection`` for its light samples, the
+  light subpath started by power as bdpt does):
   a primary sample is one camera subpath and one light subpath, each reading its own part of
   the vector (the camera's first: film position, then per vertex a light sample, a BSDF
   sample and roulette; the light's: its start, then per vertex the connection to the
@@ -259,6 +262,7 @@ class PSSMLT(IntegratorTemplate):
                   "(0: none; not given: 8 with estimator bdpt): I = min(I, cap mean).  A "
                   "rare path of very large I then neither starts many chains nor holds them, "
                   "and is weighted up instead (any positive I is a valid target)."),
+        light_selection.PARAM, light_selection.CANDIDATES_PARAM,
         Param("continue_chains", "bool", True,
               doc="A render whose seed follows the previous one continues its chains "
                   "(render passes); false: every render starts from a new bootstrap."),
@@ -271,7 +275,7 @@ class PSSMLT(IntegratorTemplate):
                 f"pssmlt: variant {mi.variant()} is not supported (the chains are Dr.Jit "
                 "lanes); use a JIT variant such as llvm_ad_rgb")
         self.heur = mis.Heuristic("power", 2.0, 0.1)
-        self.lights = light_selection.SelectionCache("power")
+        self.lights = light_selection.SelectionCache.of(self)
         self.vertex = VertexEstimator(self.heur, 1, 1, roulette.Roulette("throughput", 5))
         self.bd = None
         #: estimator=auto: bdpt or path, decided per scene in render() (auto_choice)
@@ -294,14 +298,15 @@ class PSSMLT(IntegratorTemplate):
         ``chains`` and ``importance_cap`` where they were not given."""
         self.estimator = estimator
         bd = estimator == "bdpt"
-        self.dims = ps.dims_for(self.max_depth)
+        choice = light_selection.sample_dims(self.light_selection)
+        self.dims = ps.dims_for(self.max_depth, choice)
         # a finite max_depth within the stored vertices never draws past the stored coordinates
         self.extra = not (0 <= self.max_depth <= ps.MAX_STORED_VERTICES + 1)
         #: what the chains leave to seen_emission: the emission seen directly, and with the
         #: bdpt estimator also the emission seen through delta scatterings only
         self.left_out = None if not self.separate_emission else ("delta" if bd else "direct")
         if bd:
-            self.dims_cam, self.dims_light = bdpt_dims(self.max_depth, self.bd_depth)
+            self.dims_cam, self.dims_light = bdpt_dims(self.max_depth, self.bd_depth, choice)
             self.dims, self.extra = self.dims_cam + self.dims_light, True
         # (the values used go to run_notes: the record's params are what was asked for, its
         # identity for merges, copied before the first render decides)
@@ -402,11 +407,14 @@ class PSSMLT(IntegratorTemplate):
 
     def bdpt_estimator(self, scene, sensor):
         """The ``bdpt`` integrator whose strategies the chains drive (same max_depth,
-        hide_emitters; light selection by power), checked against the scene once."""
+        hide_emitters, light selection), checked against the scene once."""
         if self.bd is None:
+            ris = {"light_candidates": self.light_candidates} \
+                if self.light_selection == "ris" else {}
             self.bd = mi.load_dict({"type": "bdpt", "max_depth": self.max_depth,
                                     "bidir_depth": BIDIR_DEPTH,
-                                    "hide_emitters": self.hide_emitters})
+                                    "hide_emitters": self.hide_emitters,
+                                    "light_selection": self.light_selection, **ris})
         if getattr(self, "_bd_checked", None) != (scene, sensor):
             self.bd.check_support(scene, sensor)
             if not _is_pinhole(sensor):
@@ -877,17 +885,18 @@ BDPT_CHAINS = 1 << 14
 BDPT_IMPORTANCE_CAP = 8.0
 
 
-def bdpt_dims(max_depth: int, bd_depth: int) -> tuple:
+def bdpt_dims(max_depth: int, bd_depth: int, choice_dims: int = 1) -> tuple:
     """Stored coordinates of the bdpt estimator: (camera subpath, light subpath).  Camera:
     the film position, then per vertex a light sample (3), a BSDF sample (3) and roulette
     (1), up to ``max_depth`` vertices (-1: unlimited); light: the start (5), then per vertex
     the connection to the camera (2), a BSDF sample (3) and roulette (1), up to
     ``bd_depth - 1`` (bdpt's D); at most MAX_STORED_VERTICES vertices each (fresh numbers
-    past them)."""
+    past them); ``choice_dims``: the numbers a light sample's choice draws (ris: 2).  The
+    light subpath's start chooses its light by power (bdpt), one number."""
     v_cam = ps.MAX_STORED_VERTICES if max_depth < 0 else min(max_depth,
                                                              ps.MAX_STORED_VERTICES)
     v_light = min(max(bd_depth - 1, 0), ps.MAX_STORED_VERTICES)
-    return 2 + 7 * v_cam, (5 + 6 * v_light) if bd_depth >= 2 else 0
+    return 2 + (6 + choice_dims) * v_cam, (5 + 6 * v_light) if bd_depth >= 2 else 0
 
 
 class _Splats:

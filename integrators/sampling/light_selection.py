@@ -58,6 +58,12 @@ PARAM = Param("light_selection", "choice", "power", choices=MODES,
 
 #: candidates per light sample of light_selection=ris
 CANDIDATES = 4
+
+
+def sample_dims(mode: str) -> int:
+    """Uniform numbers one light choice of ``mode`` draws (:attr:`LightSelection.SAMPLE_DIMS`;
+    ris: 2), for estimators that lay out their random numbers in advance (pssmlt)."""
+    return 2 if mode == "ris" else 1
 CANDIDATES_PARAM = Param("light_candidates", "int", CANDIDATES, min=1, max=64,
                          doc="light_selection=ris: lights drawn from the light tree per light "
                              "sample, one kept by resampling (1: the tree's own choice).")

@@ -49,13 +49,14 @@ STREAM_LARGE, STREAM_COORD, STREAM_ACCEPT, STREAM_EXTRA, STREAM_SEED = \
     0x0, 0x5bd1e995, 0x68e31da4, 0x1b873593, 0x2c1b3c6d
 
 
-def dims_for(max_depth: int) -> int:
+def dims_for(max_depth: int, choice_dims: int = 1) -> int:
     """Stored coordinates per chain for ``max_depth`` (Mitsuba's meaning, -1 unlimited):
     CAMERA_DIMS + VERTEX_DIMS per vertex that can cast a light sample, at most
-    MAX_STORED_VERTICES vertices."""
+    MAX_STORED_VERTICES vertices; ``choice_dims``: the numbers a light choice draws (1, or 2
+    for ris), VERTEX_DIMS counting one."""
     vertices = MAX_STORED_VERTICES if max_depth < 0 else max(0, min(max_depth - 1,
                                                                     MAX_STORED_VERTICES))
-    return CAMERA_DIMS + VERTEX_DIMS * vertices
+    return CAMERA_DIMS + (VERTEX_DIMS + choice_dims - 1) * vertices
 
 
 def hash32(x):
