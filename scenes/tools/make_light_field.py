@@ -11,7 +11,9 @@ rectangles: in Mitsuba 3.9 rectangle emitters make the compiled kernel grow with
 
 The scene is built at run time (:func:`scene_dict` for ``mi.load_dict``); ``python
 scenes/tools/make_light_field.py N`` writes ``scenes/light_field_N.xml`` (committed only for small
-N: the 64-light file is ~10 KB, a 16,384-light file would be 2.5 MB of XML).
+N: the 64-light file is 15 KB, a 16,384-light file would be about 4 MB of XML; Mitsuba's
+instances cannot carry area emitters, and one emissive mesh is one light, so a scene of
+thousands of distinct lights has no small XML form: the tests and benchmarks build it).
 Run from the repository root."""
 from __future__ import annotations
 
