@@ -397,11 +397,14 @@ def test_auto_estimator_is_bdpt_where_depth_and_scene_allow_it():
         assert notes["importance_cap"] == integ.importance_cap
         assert integ.params["chains"] == P.PATH_CHAINS        # params: what was asked for
         assert integ.importance_cap == (P.BDPT_IMPORTANCE_CAP if expected == "bdpt" else 0)
+        assert notes["large_step"] == integ.large_step == (
+            P.BDPT_LARGE_STEP if expected == "bdpt" else P.PATH_LARGE_STEP)
         del scene, integ
     gc.collect()
     # an explicit estimator is kept as given (no notes on a choice)
     integ = pssmlt()
-    assert integ.run_notes() == {"estimator": "path", "chains": 4096, "importance_cap": 0.0}
+    assert integ.run_notes() == {"estimator": "path", "chains": 4096, "importance_cap": 0.0,
+                                 "large_step": P.PATH_LARGE_STEP}
 
 
 def test_bdpt_estimator_refuses_what_bdpt_refuses_in_one_line():
