@@ -312,7 +312,8 @@ def report(results, out: Path, files):
              f"Resolution {a['res']}x{a['res']}, max_depth {a['max_depth']}, time budget "
              f"{a['budget']} s per method and repeat, {a['repeats']} repeats (medians), passes of "
              f"{PASS_SPP} samples or mutations per pixel; references: "
-             f"{REF_NAMES[a.get('ref_method', 'path')]} at {a['ref_spp']} spp.  relMSE = mean (x - ref)^2 / (ref^2 + {EPS}).", "",
+             f"{REF_NAMES[a.get('ref_method', 'path')]} at {a['ref_spp']} spp.  "
+             f"relMSE = mean (x - ref)^2 / (ref^2 + {EPS}).", "",
              "## Relative error at equal time", "",
              "| scene | " + " | ".join(a["methods"]) +
              "".join(f" | {m} / path" for m in MLT_METHODS if m in a["methods"]) +

@@ -136,6 +136,9 @@ MAX_CHAINS = 1 << 20
 ESTIMATORS = ("auto", "path", "bdpt")
 #: chains of the path estimator when ``chains`` is not given (see the docstring)
 PATH_CHAINS = 2048
+#: large-step probability of the path estimator when ``large_step`` is not given (Kelemen's and
+#: pbrt-v4's 0.3; the bdpt estimator's: BDPT_LARGE_STEP)
+PATH_LARGE_STEP = 0.3
 MAX_BOOTSTRAP = 1 << 24
 
 
@@ -233,7 +236,7 @@ class PSSMLT(IntegratorTemplate):
 
     PARAMS = (
         MAX_DEPTH,
-        Param("large_step", "float", 0.3, min=0.0, max=1.0,
+        Param("large_step", "float", PATH_LARGE_STEP, min=0.0, max=1.0,
               doc="Probability of a large step (a fresh uniform primary sample; not given: "
                   "0.8 with estimator bdpt)."),
         Param("sigma", "float", 1.0 / 64.0, min=0.0, max=0.5, min_exclusive=True,
@@ -887,10 +890,7 @@ BDPT_CHAINS = 1 << 14
 #: at 8 its caustic errors double, so it keeps no cap.
 BDPT_IMPORTANCE_CAP = 8.0
 
-#: large-step probability of the path estimator when ``large_step`` is not given (Kelemen's and
-#: pbrt-v4's 0.3)
-PATH_LARGE_STEP = 0.3
-#: ... and of the bdpt estimator: bdpt finds the caustic and glass-shade paths by itself, so the
+#: large-step probability of the bdpt estimator when ``large_step`` is not given: bdpt finds the caustic and glass-shade paths by itself, so the
 #: chains gain more from its independent samples (large steps, each splatted with Kelemen's
 #: weight) than from small steps, and a chain on a rare bright path leaves it sooner (after
 #: about I / (mean I x large_step) steps).  Measured (64 x 64, 6 s, 3 repeats, medians,
@@ -913,7 +913,8 @@ def bdpt_dims(max_depth: int, bd_depth: int, choice_dims: int = 1) -> tuple:
     v_cam = ps.MAX_STORED_VERTICES if max_depth < 0 else min(max_depth,
                                                              ps.MAX_STORED_VERTICES)
     v_light = min(max(bd_depth - 1, 0), ps.MAX_STORED_VERTICES)
-    return 2 + (6 + choice_dims) * v_cam, (5 + 6 * v_light) if bd_depth >= 2 else 0
+    return (2 + (ps.VERTEX_DIMS - 1 + choice_dims) * v_cam,
+            (5 + 6 * v_light) if bd_depth >= 2 else 0)
 
 
 class _Splats:

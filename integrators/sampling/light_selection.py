@@ -59,11 +59,6 @@ PARAM = Param("light_selection", "choice", "power", choices=MODES,
 #: candidates per light sample of light_selection=ris
 CANDIDATES = 4
 
-
-def sample_dims(mode: str) -> int:
-    """Uniform numbers one light choice of ``mode`` draws (:attr:`LightSelection.SAMPLE_DIMS`;
-    ris: 2), for estimators that lay out their random numbers in advance (pssmlt)."""
-    return 2 if mode == "ris" else 1
 CANDIDATES_PARAM = Param("light_candidates", "int", CANDIDATES, min=1, max=64,
                          doc="light_selection=ris: lights drawn from the light tree per light "
                              "sample, one kept by resampling (1: the tree's own choice).")
@@ -630,11 +625,25 @@ class AdaptiveLightSelection(LightSelection):
         return emitter, sel, total
 
 
-def make(scene, mode: str, candidates: int = CANDIDATES) -> LightSelection:
+def selection_class(mode: str) -> type:
+    """The LightSelection class of a ``light_selection`` mode."""
     if mode == "bvh":
         from .light_tree import LightTreeSelection
-        return LightTreeSelection(scene)
+        return LightTreeSelection
     if mode == "ris":
         from .light_tree import ResampledTreeSelection
-        return ResampledTreeSelection(scene, candidates)
-    return AdaptiveLightSelection(scene) if mode == "adaptive" else LightSelection(scene, mode)
+        return ResampledTreeSelection
+    return AdaptiveLightSelection if mode == "adaptive" else LightSelection
+
+
+def make(scene, mode: str, candidates: int = CANDIDATES) -> LightSelection:
+    cls = selection_class(mode)
+    if cls is LightSelection:
+        return cls(scene, mode)
+    return cls(scene, candidates) if mode == "ris" else cls(scene)
+
+
+def sample_dims(mode: str) -> int:
+    """Uniform numbers one light choice of ``mode`` draws (its class's ``SAMPLE_DIMS``), for
+    estimators that lay out their random numbers in advance (pssmlt's primary vectors)."""
+    return selection_class(mode).SAMPLE_DIMS

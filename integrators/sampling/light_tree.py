@@ -292,19 +292,20 @@ def build(lo, hi, w, cos_o, cos_e, two, phi) -> Tree:
                 continue
             bs = np.nonzero(group)[0]
             if len(bs) == S:
-                k, d = _best_splits(rows, seg, S, cmin, cmax, orient, length)
+                k, d = _best_splits(rows, seg, S, cmin, cmax, length, orient)
             else:
                 sel = group[seg]
                 remap = np.cumsum(group) - 1
                 k, d = _best_splits(rows[:, sel], remap[seg[sel]], len(bs), cmin[bs], cmax[bs],
-                                    orient, length[group])
+                                    length[group], orient)
             split_k[bs], split_dim[bs] = k, d
         use_sah = split_k >= 0
         sd = np.where(use_sah, split_dim, np.argmax(cmax - cmin, axis=1))
         sds = sd[seg]
         coord = np.where(sds == 0, c[0], np.where(sds == 1, c[1], c[2]))
         ext = (cmax - cmin)[np.arange(S), sd]
-        b = _bucket(coord, cmin[np.arange(S), sd], ext, seg, length) if use_sah.any() else 0
+        lo_sd = cmin[np.arange(S), sd]
+        b = _bucket(coord, lo_sd, ext, length) if use_sah.any() else 0
         # lights of median-split nodes in order of their coordinate (src: where each position
         # takes its light from), then the first half left
         med = ~use_sah[seg]
@@ -314,7 +315,6 @@ def build(lo, hi, w, cos_o, cos_e, two, phi) -> Tree:
             # one sort key: the segment plus the coordinate's place in its span, in [0, 0.5]
             # (a stable float sort is ten times faster than np.lexsort)
             sm = seg[m]
-            lo_sd = cmin[np.arange(S), sd]
             o = m[np.argsort(sm + 0.5 * (coord[m] - lo_sd[sm]) / np.where(ext > 0, ext, 1.0)[sm],
                              kind="stable")]
             src = np.arange(len(ids))
@@ -379,17 +379,14 @@ def _reduce_at(ufunc, init, n, key, v):
     return out
 
 
-def _bucket(c, cmin, ext, seg, counts=None):
-    """The bucket (0 .. BUCKETS - 1) of each centroid coordinate c (lights of segment seg,
-    whose centroids span cmin + [0, ext]; arrays of segments indexed along their first axis,
-    transposed if c is (3, lights)); ``counts``: the lights of each segment, if seg is
-    np.repeat(arange(S), counts) (a repeat is cheaper than the gather)."""
+def _bucket(c, cmin, ext, counts):
+    """The bucket (0 .. BUCKETS - 1) of each centroid coordinate c: ``counts[s]`` consecutive
+    lights of each segment s, whose centroids span cmin + [0, ext] (arrays of segments indexed
+    along their first axis, transposed if c is (3, lights)); the segments' values are repeated
+    over their lights (cheaper than a gather by segment)."""
     ext = np.where(ext > 0, ext, 1.0)
-    if counts is not None:
-        axis = 1 if c.ndim == 2 else 0
-        cmin, ext = (np.repeat(a.T if c.ndim == 2 else a, counts, axis=axis) for a in (cmin, ext))
-    else:
-        cmin, ext = (cmin[seg].T, ext[seg].T) if c.ndim == 2 else (cmin[seg], ext[seg])
+    axis = 1 if c.ndim == 2 else 0
+    cmin, ext = (np.repeat(a.T if c.ndim == 2 else a, counts, axis=axis) for a in (cmin, ext))
     b = c - cmin
     b *= BUCKETS
     b /= ext
@@ -402,12 +399,12 @@ ROW = {"lo": slice(0, 3), "hi": slice(3, 6), "w": slice(6, 9), "c": slice(9, 12)
        "cos_o": 13, "cos_e": 14, "theta_o": 15}
 
 
-def _best_splits(rows, seg, S, cmin, cmax, orient=True, counts=None):
+def _best_splits(rows, seg, S, cmin, cmax, counts, orient=True):
     """Per segment: (bucket boundary k, axis) of the cheapest SAOH split, k = -1 for none;
-    ``rows``: the segments' lights, one column each (rows: ROW), segment seg[i] for light i;
-    ``cmin``, ``cmax`` (S, 3): the bounds of their centroids; ``orient`` False: without the
-    orientation measure (surface area and power only); ``counts``: the lights of each segment
-    (for a repeat instead of a gather)."""
+    ``rows``: the segments' lights, one column each (rows: ROW), segment seg[i] for light i,
+    ``counts[s]`` lights of segment s, consecutive; ``cmin``, ``cmax`` (S, 3): the bounds of
+    their centroids; ``orient`` False: without the orientation measure (surface area and power
+    only)."""
     lo_i, hi_i, w_i = (rows[ROW[k]].T for k in ("lo", "hi", "w"))
     phi_i, co_i, ce_i, theta_i = (rows[ROW[k]] for k in ("phi", "cos_o", "cos_e", "theta_o"))
     ext = cmax - cmin                                                   # (S, 3)
@@ -424,7 +421,7 @@ def _best_splits(rows, seg, S, cmin, cmax, orient=True, counts=None):
     dims = [d for d in range(3) if (ext[:, d] > 0).any()]
     if not dims:
         return np.full(S, -1), np.full(S, -1)
-    b3 = _bucket(rows[ROW["c"]], cmin, ext, seg, counts)                # (3, lights)
+    b3 = _bucket(rows[ROW["c"]], cmin, ext, counts)                     # (3, lights)
     count, bphi = np.zeros((3, nb)), np.zeros((3, nb))
     blo, bhi = np.full((3, nb, 3), np.inf), np.full((3, nb, 3), -np.inf)
     if not same_cone:
