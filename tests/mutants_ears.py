@@ -38,6 +38,12 @@ MUTANTS = [
     # contributions written instead of added: the copies of a camera sample overwrite each
     # other (and the first hit's emission)
     ("ears-contribution-overwrites", _S,
-     'dr.scatter_reduce(dr.ReduceOp.Add, self.L, c, state["sid"], mode=DIRECT)',
-     'dr.scatter(self.L, c, state["sid"])', _T),
+     'dr.scatter_reduce(dr.ReduceOp.Add, self.L, st["own"][0], st["sid"], flush,\n'
+     '                              mode=DIRECT)',
+     'dr.scatter(self.L, st["own"][0], st["sid"], flush)', _T),
+    # the throughput rule (where nothing is learned) applied without dividing the survivors
+    # by their survival probability
+    ("ears-throughput-rule-uncompensated", _S,
+     "return dr.select(rr, beta * safe_div(1.0, q), beta), ~rr | (u < q)",
+     "return beta, ~rr | (u < q)", _T),
 ]

@@ -42,23 +42,32 @@ neighbours, whose variance then looks small) and, from the last pass, its second
 cost.  Between passes (:meth:`EARS.learn`) each region gets its two factors sqrt(M C / (V c))
 and sqrt(Var C / (V c)); statistics then decay by ``DECAY`` so that what is learned follows
 the changing policy.  Until a region (or its coarse cell) is learned, and in the first pass, a
-vertex uses the classic throughput rule (n = 1 before ``rr_depth``, then
-min(max(beta) eta^2, 0.95)).  The learned state lives on the integrator per scene, across the
+vertex has n = 1 and its copy applies the classic throughput rule after its BSDF sample (from
+``rr_depth`` on, survival min(max(beta) eta^2, 0.95) with the sample's weight in beta), as
+Mitsuba's ``path`` does: applied before the sample, the rule lags one bounce behind and traces
+a fifth more rays (4.5 against 5.5 continuations per camera sample in the indirect room).  The
+learned state lives on the integrator per scene, across the
 passes of ``render --spp`` or ``--time``.
 
 **Path replication (the wavefront).**  Camera samples are processed in batches.  Per bounce one
 kernel runs over the live lanes (:meth:`Wavefront.continuation`): the BSDF sample, its ray, the
 MIS-weighted emission it finds (:meth:`VertexEstimator.emission`), the light samples at the new
-vertex, all scattered (``dr.scatter_reduce``) to the lane's camera sample, then n at the new
-vertex and u for its rounding.  Then the next wavefront is built (:meth:`Wavefront.replicate`):
+vertex, all added to the lane's own sums (they go to its camera sample, one
+``dr.scatter_reduce``, when the lane ends or splits), then n at the new vertex and u for its
+rounding.  Then the next wavefront is built (:meth:`Wavefront.replicate`):
 lanes with zero copies are dropped (``dr.compress``), lanes with k copies appear k times (an
 exclusive prefix sum of the counts gives each parent's first slot; a scatter of marks and an
 inclusive prefix sum give every slot its parent), and the state is gathered (inside the next
 bounce's kernel).  Each lane carries its camera sample's index; when a batch has no live lane
 left, its camera samples are splatted into the film (Mitsuba's ``ImageBlock``, with the film's
-reconstruction filter).  The last lanes of a batch (fewer than ``TAIL_FRACTION`` of its camera
-samples, after the bounces that keep records) finish in one kernel, a loop over the bounces
-with roulette only (:meth:`Wavefront.tail`), instead of a wavefront per bounce.
+reconstruction filter).  Per ray a bounce of the wavefront costs about 1.8x a bounce of
+Mitsuba's megakernel (the state written and gathered, a few host synchronisations), a loop in
+one kernel about 1.2x, so only the first vertices of a path, where splitting pays, are
+replicated: after ``LEARN_DEPTH`` + 1 of them the lanes finish in one kernel, a loop over the
+bounces with roulette only (:meth:`Wavefront.tail`; n clamped to 1).  Splitting deeper was
+measured not to pay (indirect room and glossy scene, 128 spp: 0.70x and 0.56x of the
+baseline's efficiency with splits up to the fourth vertex and records at three, 0.80x / 0.62x
+with the tail after the records, 0.90x / 0.67x as now).
 
 **Memory.**  At most ``max_lanes`` lanes are alive: a batch starts with ``max_lanes / 2``
 camera samples, and where the copies of a bounce could pass the cap, every n of that bounce is
@@ -83,13 +92,11 @@ import numpy as np
 from ..common import depth_limit, emitted, luminance, record_once, safe_div
 from .learning import RegionGrid
 
-#: bounces whose vertices keep records (statistics of L_r and cost per region)
-LEARN_DEPTH = 3
+#: bounces whose vertices keep records (statistics of L_r and cost per region); one more
+#: bounce is replicated, the rest runs in the tail kernel
+LEARN_DEPTH = 2
 #: copies a region needs before its learned factors replace the throughput rule
 MIN_VISITS = 32
-#: a batch's last paths (fewer live lanes than this fraction of its camera samples, after the
-#: bounces that keep records) finish in one kernel with roulette only (:meth:`Wavefront.tail`)
-TAIL_FRACTION = 0.25
 #: resolutions of the fine and the coarse grid (cells along the scene's longest side)
 FINE, COARSE = 32, 8
 #: weight of older statistics after each pass (the policy behind a vertex changes)
@@ -165,8 +172,13 @@ class EARS:
     # ---- in the kernel -------------------------------------------------------------------
     def factor(self, si, beta, eta, depth, pixel, sampler, active):
         """n(x) at the vertex ``si`` reached with throughput ``beta`` (before clamping to the
-        lane cap), and its cell.  Zero where ``active`` is false."""
+        lane cap), whether the vertex falls back on the throughput rule, and its cell.  n is
+        zero where ``active`` is false.  Where nothing is learned n is 1 and the throughput
+        rule is applied by the copy after its BSDF sample (:meth:`Wavefront.continuation`), as
+        Mitsuba's ``path`` does: the sample's own weight then counts in the survival, and no
+        more continuations are traced than the classic roulette traces."""
         cell = (self.grid.cell_of(si), self.coarse.cell_of(si))
+        classic = mi.Bool(False)
         if self.forced is not None:
             n = dr.clip(self.forced(sampler, active), self.rr_min, self.split_max)
         else:
@@ -178,13 +190,19 @@ class EARS:
             w = luminance(beta) * dr.gather(mi.Float, self.inv_pixel, pixel, active)
             n_m = w * f_m
             n = dr.select(n_m < 1.0, n_m, dr.maximum(w * f_v, 1.0))
-            beta_max = dr.max(mi.unpolarized_spectrum(beta), axis=0)
-            classic = dr.select(depth >= self.rr_depth,
-                                dr.minimum(beta_max * dr.square(eta), THROUGHPUT_CAP), 1.0)
-            n = dr.select(f_m >= 0, n, classic)
-            n = dr.clip(n, self.rr_min, self.split_max)
+            classic = f_m < 0
+            n = dr.select(classic, 1.0, dr.clip(n, self.rr_min, self.split_max))
         beta_nz = dr.any(mi.unpolarized_spectrum(beta) != 0)
-        return dr.select(active & beta_nz, n, 0.0), cell
+        return dr.select(active & beta_nz, n, 0.0), classic, cell
+
+    def throughput_roulette(self, beta, eta, depth, classic, sampler, active):
+        """The throughput rule after a copy's BSDF sample where its vertex had nothing learned
+        (``classic``), from ``rr_depth`` on: (beta, survives)."""
+        rr = classic & (depth >= self.rr_depth)
+        q = dr.minimum(dr.max(mi.unpolarized_spectrum(beta), axis=0) * dr.square(eta),
+                       THROUGHPUT_CAP)
+        u = sampler.next_1d(active)
+        return dr.select(rr, beta * safe_div(1.0, q), beta), ~rr | (u < q)
 
     # ---- between passes ------------------------------------------------------------------
     def learn(self, spp: int):
@@ -332,7 +350,6 @@ class Wavefront:
         learn = ears.learning and ears.forced is None
         self._next = None
         self.L = dr.zeros(mi.Spectrum, n_cam)
-        cost = dr.zeros(mi.Float, n_cam)
         if integ.params.get("hide_emitters", False) or integ.max_depth == 0:
             si, L0 = integ.camera_hit(scene, ray, True)
         else:   # as camera_hit, keeping the preliminary intersection (a smaller state to copy)
@@ -346,19 +363,21 @@ class Wavefront:
         # continuation)
         L_nee, k0 = self.light(scene, sel, sampler, si, alive)
         self.L += L0 + L_nee
-        cost += k0
+        self.cost = dr.zeros(mi.Float, n_cam) + k0
         sid = dr.arange(mi.UInt32, n_cam)
         beta = mi.Spectrum(1.0)
         eta = mi.Float(1.0)
         depth = mi.UInt32(0)
         u = sampler.next_1d()
-        n, cell = ears.factor(si, beta, eta, depth, pixel, sampler, alive)
-        dr.eval(self.L, cost, valid, n, u, cell, si if self._next is None else self._next)
+        n, classic, cell = ears.factor(si, beta, eta, depth, pixel, sampler, alive)
+        dr.eval(self.L, self.cost, valid, n, u, cell, classic,
+                si if self._next is None else self._next)
         self.stats["camera_rays"] += n_cam
         recs = []
-        self._cont = 0
+        self.rays = dr.zeros(mi.UInt32, 1)       # continuation rays traced (see continuation)
         state = self.replicate(dict(si=si, beta=beta, eta=eta, depth=depth, sid=sid,
-                                    pixel=pixel, hist=[], acc=[]), n, u, cell, alive, recs,
+                                    pixel=pixel, hist=[], acc=[], classic=classic),
+                               n, u, cell, alive, recs,
                                learn)
         bounce = 0
         while state is not None:
@@ -366,31 +385,30 @@ class Wavefront:
             sampler.seed(dr.opaque(mi.UInt32, seed_mix(seed, b0, bounce)), state["width"])
             si, beta, eta, depth, alive, c, k = self.vertex(scene, sel, sampler, state, limit)
             hist = state["hist"]
-            dr.scatter_reduce(dr.ReduceOp.Add, self.L, c, state["sid"], mode=DIRECT)
-            dr.scatter_reduce(dr.ReduceOp.Add, cost, k, state["sid"], mode=DIRECT)
-            # what this lane added since each of its records was made (flushed to the records
-            # when the lane ends or splits: one scatter per segment of a path, not per bounce)
+            # what this lane added to its camera sample, and since each of its records was made
+            # (flushed to the camera sample and the records when the lane ends or splits: one
+            # scatter per segment of a path, not an atomic add per bounce)
+            own = (state["own"][0] + c, state["own"][1] + k)
             lc = luminance(c)
             acc = [(a + lc, b + k) for a, b in state["acc"]]
             u = sampler.next_1d()
-            n, cell = ears.factor(si, beta, eta, depth, state["pixel"], sampler, alive)
+            n, classic, cell = ears.factor(si, beta, eta, depth, state["pixel"], sampler, alive)
             # one kernel: what the next wavefront gathers, and the scattered contributions
-            dr.eval(self._next, beta, eta, depth, alive, n, u, cell, self.L, cost, acc)
-            self.stats["continuation_rays"] += state["width"]
-            self._cont += state["width"]
+            dr.eval(self._next, beta, eta, depth, alive, n, u, cell, classic, own, acc)
             state = self.replicate(dict(si=si, beta=beta, eta=eta, depth=depth,
                                         sid=state["sid"], pixel=state["pixel"], hist=hist,
-                                        acc=acc),
+                                        acc=acc, own=own, classic=classic),
                                    n, u, cell, alive, recs, learn and bounce < LEARN_DEPTH)
-            if state is not None and bounce >= LEARN_DEPTH and \
-                    state["width"] < TAIL_FRACTION * n_cam:
-                bounce += self.tail(scene, sel, sampler, state, limit, recs, cost,
+            if state is not None and bounce >= LEARN_DEPTH:
+                bounce += self.tail(scene, sel, sampler, state, limit, recs,
                                     seed_mix(seed, b0, bounce, 0x7A11))
                 state = None
         self.stats["bounces"] = max(self.stats["bounces"], bounce)
         # the cost of a bounce is 1 + SHADOW_COST per shadow ray: count them from it
-        work = float(dr.sum(cost)[0])
-        self.stats["shadow_rays"] += int(round((work - self._cont) / SHADOW_COST))
+        work = float(dr.sum(self.cost)[0])
+        rays = int(self.rays[0])
+        self.stats["continuation_rays"] += rays
+        self.stats["shadow_rays"] += int(round((work - rays) / SHADOW_COST))
         if learn:
             for r in recs:
                 L_r = safe_div(r["S"], r["blum"])
@@ -403,7 +421,7 @@ class Wavefront:
 
     @record_once
     @dr.syntax
-    def tail(self, scene, sel, sampler, st, limit, recs, cost, seed: int) -> int:
+    def tail(self, scene, sel, sampler, st, limit, recs, seed: int) -> int:
         """The few paths left of a batch, finished in one kernel (a loop over the bounces)
         instead of a wavefront per bounce: the same vertex estimate, with roulette only (n
         clamped to 1: no more copies, so no more replication), survivors weighted 1/n.  What
@@ -414,32 +432,30 @@ class Wavefront:
         ray = mi.Ray3f(st["ray"])
         si = st["pi"].compute_surface_interaction(ray, mi.RayFlags.All, True)
         beta, eta, depth = mi.Spectrum(st["beta"]), mi.Float(st["eta"]), mi.UInt32(st["depth"])
-        sid, pixel = st["sid"], st["pixel"]
-        lum_sum, cost_sum = mi.Float(0.0), mi.Float(0.0)
+        sid, pixel, classic = st["sid"], st["pixel"], mi.Bool(st["classic"])
+        L_sum, cost_sum = mi.Spectrum(0.0), mi.Float(0.0)
         rays = mi.UInt32(0)
         active = mi.Bool(True)
-        while dr.hint(active, label="ears tail", exclude=[limit, cost, sid, pixel]):
+        while dr.hint(active, label="ears tail", exclude=[limit, sid, pixel]):
             _, _, si_n, beta, eta, depth, alive, c, k = self.continuation(
-                scene, sel, sampler, si, beta, eta, depth, limit, active)
-            dr.scatter_reduce(dr.ReduceOp.Add, self.L, c, sid, mode=DIRECT)
-            dr.scatter_reduce(dr.ReduceOp.Add, cost, k, sid, mode=DIRECT)
-            lum_sum += luminance(c)
+                scene, sel, sampler, si, beta, eta, depth, classic, limit, active)
+            L_sum += c
             cost_sum += k
             rays += 1
-            n, _ = ears.factor(si_n, beta, eta, depth, pixel, sampler, alive)
+            n, classic, _ = ears.factor(si_n, beta, eta, depth, pixel, sampler, alive)
             q = dr.minimum(n, 1.0)
             alive &= sampler.next_1d() < q
             beta *= copy_weight(q)
             si = si_n
             active = alive
+        dr.scatter_reduce(dr.ReduceOp.Add, self.L, st["own"][0] + L_sum, sid, mode=DIRECT)
+        dr.scatter_reduce(dr.ReduceOp.Add, self.cost, st["own"][1] + cost_sum, sid, mode=DIRECT)
+        lum_sum = luminance(L_sum)
         for r, hh, (a, b) in zip(recs, st["hist"], st["acc"]):
             dr.scatter_reduce(dr.ReduceOp.Add, r["S"], a + lum_sum, hh, mode=DIRECT)
             dr.scatter_reduce(dr.ReduceOp.Add, r["R"], b + cost_sum, hh, mode=DIRECT)
-        total = dr.sum(rays)
         longest = dr.max(rays)
-        dr.eval(self.L, cost, total, longest, [(r["S"], r["R"]) for r in recs])
-        self.stats["continuation_rays"] += int(total[0])
-        self._cont += int(total[0])
+        dr.eval(self.L, self.cost, longest, [(r["S"], r["R"]) for r in recs])
         return int(longest[0])
 
     def light(self, scene, sel, sampler, si, active):
@@ -451,7 +467,7 @@ class Wavefront:
         k = dr.select(active & smooth & (sel.count > 0), SHADOW_COST, 0.0)
         return dr.select(active, d.L, 0.0), k
 
-    def continuation(self, scene, sel, sampler, si, beta, eta, depth, limit, active):
+    def continuation(self, scene, sel, sampler, si, beta, eta, depth, classic, limit, active):
         """One copy's continuation from ``si``: a BSDF sample, its ray, the emission it finds
         (MIS-weighted against the light samples at ``si``), and the light samples at the vertex
         it reaches.  Returns (ray, pi, si_next, beta, eta, depth, alive, contribution, cost)."""
@@ -462,17 +478,22 @@ class Wavefront:
         beta = beta * w
         eta = eta * bs.eta
         depth = depth + 1
-        act = active & (bs.pdf > 0) & dr.any(mi.unpolarized_spectrum(beta) != 0)
+        beta, survives = self.ears.throughput_roulette(beta, eta, depth, classic, sampler,
+                                                       active)
+        act = active & survives & (bs.pdf > 0) & dr.any(mi.unpolarized_spectrum(beta) != 0)
         ray = si.spawn_ray(si.to_world(bs.wo))
         pi = scene.ray_intersect_preliminary(ray, coherent=False, active=act)
         si_n = pi.compute_surface_interaction(ray, mi.RayFlags.All, act)
+        # one atomic add per SIMD packet (Local: reduced within the packet first)
+        dr.scatter_reduce(dr.ReduceOp.Add, self.rays, mi.UInt32(1), mi.UInt32(0), act,
+                          mode=dr.ReduceMode.Local)
         delta = mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta)
         L_w = vx.emission(scene, sel, si, si_n, [vx.n_b * bs.pdf], delta, act)
         c = dr.select(act, beta * L_w, 0.0)
         alive = act & si_n.is_valid() & (depth + 1 < limit)
         L_nee, k = self.light(scene, sel, sampler, si_n, alive)
         c += beta * L_nee
-        return ray, pi, si_n, beta, eta, depth, alive, c, 1.0 + k
+        return ray, pi, si_n, beta, eta, depth, alive, c, dr.select(act, 1.0, 0.0) + k
 
     def vertex(self, scene, sel, sampler, st, limit):
         """The kernel of one bounce over the live lanes (:meth:`continuation`): the
@@ -482,7 +503,8 @@ class Wavefront:
         else:
             si = st["pi"].compute_surface_interaction(st["ray"], mi.RayFlags.All, True)
         ray, pi, si_n, beta, eta, depth, alive, c, k = self.continuation(
-            scene, sel, sampler, si, st["beta"], st["eta"], st["depth"], limit, mi.Bool(True))
+            scene, sel, sampler, si, st["beta"], st["eta"], st["depth"], st["classic"], limit,
+            mi.Bool(True))
         self._next = (ray, pi)
         return si_n, beta, eta, depth, alive, c, k
 
@@ -498,14 +520,20 @@ class Wavefront:
         ns = n * dr.opaque(mi.Float, s)
         counts = mi.UInt32(dr.floor(ns + u))
         counts = dr.select(alive & (ns > 0), counts, 0)
-        # a lane that ends or splits hands what it added to its records (see batch)
+        # a lane that ends or splits hands what it added to its camera sample and its records
+        # (see batch)
         flush = counts != 1
+        if "own" in st:
+            dr.scatter_reduce(dr.ReduceOp.Add, self.L, st["own"][0], st["sid"], flush,
+                              mode=DIRECT)
+            dr.scatter_reduce(dr.ReduceOp.Add, self.cost, st["own"][1], st["sid"], flush,
+                              mode=DIRECT)
         for r, hh, (a, b) in zip(recs, st["hist"], st["acc"]):
             dr.scatter_reduce(dr.ReduceOp.Add, r["S"], a, hh, flush, mode=DIRECT)
             dr.scatter_reduce(dr.ReduceOp.Add, r["R"], b, hh, flush, mode=DIRECT)
         parents = dr.compress(counts > 0)
         if dr.width(parents) == 0:
-            dr.eval([(r["S"], r["R"]) for r in recs])
+            dr.eval(self.L, self.cost, [(r["S"], r["R"]) for r in recs])
             return None
         cnt = dr.gather(mi.UInt32, counts, parents)
         first = dr.prefix_sum(cnt)                    # exclusive: each parent's first slot
@@ -522,11 +550,17 @@ class Wavefront:
                    depth=dr.gather(mi.UInt32, st["depth"], idx),
                    sid=dr.gather(mi.UInt32, st["sid"], idx),
                    pixel=dr.gather(mi.UInt32, st["pixel"], idx),
+                   classic=dr.gather(mi.Bool, st["classic"], idx),
                    hist=[dr.gather(mi.UInt32, hh, idx) for hh in st["hist"]])
         # a lane that went on alone keeps its sums; the copies of a split start from zero
         alone = dr.gather(mi.UInt32, counts, idx) == 1
         out["acc"] = [(dr.gather(mi.Float, a, idx, alone), dr.gather(mi.Float, b, idx, alone))
                       for a, b in st["acc"]]
+        if "own" in st:
+            out["own"] = (dr.gather(mi.Spectrum, st["own"][0], idx, alone),
+                          dr.gather(mi.Float, st["own"][1], idx, alone))
+        else:
+            out["own"] = (dr.zeros(mi.Spectrum, total), dr.zeros(mi.Float, total))
         if self._next is not None:               # after a bounce: the ray and its hit
             ray, pi = self._next
             out["ray"] = dr.gather(mi.Ray3f, ray, idx)
