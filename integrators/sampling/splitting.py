@@ -69,11 +69,16 @@ measured not to pay (indirect room and glossy scene, 128 spp: 0.70x and 0.56x of
 baseline's efficiency with splits up to the fourth vertex and records at three, 0.80x / 0.62x
 with the tail after the records, 0.90x / 0.67x as now).
 
-**Memory.**  At most ``max_lanes`` lanes are alive: a batch starts with ``max_lanes / 2``
-camera samples, and where the copies of a bounce could pass the cap, every n of that bounce is
-scaled by s = (cap - A) / sum n (A the live lanes), computed before the rounding from the n
-alone (so still unbiased: each copy's weight is 1/(s n)), which bounds sum floor(s n + u) by
-s sum n + A <= cap.  Memory is then independent of the samples per pixel.
+**Memory.**  At most ``max_lanes`` lanes are alive: where the copies of a bounce could pass the
+cap, every n of that bounce is scaled by s = (cap - A) / sum n (A the live lanes), computed
+before the rounding from the n alone (so still unbiased: each copy's weight is 1/(s n)), which
+bounds sum floor(s n + u) by s sum n + A <= cap.  Memory is then independent of the samples per
+pixel.  The scaling changes the learned policy (every vertex of the bounce splits less and
+rolls more), so a batch holds only as many camera samples as leave room for the copies: cap /
+D, D the largest (A + sum n) per camera sample of a bounce in the previous pass (2 in the
+first, never more than 2 ``split_max`` + 1).  With half the cap per batch, as before, the
+learned splits of a 64-spp pass in the glossy scene (mean n 2.5 at the first hit) were scaled
+by about 0.4, to no splitting at all.
 
 **Cost.**  ``stats`` counts what was traced: camera rays, continuation rays, shadow rays, and
 the camera samples, so comparisons can be made per ray as well as per second.
@@ -150,6 +155,8 @@ class EARS:
         self.f_var_coarse = mi.Float(np.full(self.coarse.size, -1.0, np.float32))
         self.shape = None
         self.passes = 0
+        #: largest (live lanes + sum of n) per camera sample of a bounce in the last pass
+        self.lane_demand = 2.0
         self.learned = False
         self.forced = None
         #: set False to freeze what was learned
@@ -321,13 +328,16 @@ class Wavefront:
         w, h = int(size[0]), int(size[1])
         self.ears.film((h, w))
         total = w * h * spp
-        batch = max(1, self.max_lanes // 2)
+        demand = min(max(self.ears.lane_demand, 2.0), 2.0 * self.ears.split_max + 1.0)
+        batch = max(1, int(self.max_lanes / (1.1 * demand)))
+        self._demand = 0.0
         block = film.create_block()
         sampler = mi.load_dict({"type": "independent"})
         for b0 in range(0, total, batch):
             n = min(batch, total - b0)
             sampler.seed(dr.opaque(mi.UInt32, seed_mix(seed, b0, 0xCA)), n)
-            idx = dr.arange(mi.UInt32, b0, b0 + n)
+            # (the offset opaque: a literal would compile the kernel again for every batch)
+            idx = dr.arange(mi.UInt32, n) + dr.opaque(mi.UInt32, b0)
             ray, weight, pos, pixel = self.camera_rays(sensor, sampler, idx, spp)
             L, valid = self.batch(scene, sampler, ray, pixel, seed, b0)
             ADIntegrator._splat_to_block(block, film, pos, value=L * weight, weight=1.0,
@@ -339,13 +349,14 @@ class Wavefront:
             dr.eval(block.tensor(), self.ears.pass_s1, self.ears.pass_s2)
             self.stats["batches"] += 1
             self.stats["camera_samples"] += n
+        self.ears.lane_demand = self._demand
         return block
 
     def batch(self, scene, sampler, ray, pixel, seed: int, b0: int):
         """Every path of one batch of camera samples: (L per camera sample, valid)."""
         integ, ears = self.integ, self.ears
         sel = integ.prepare(scene)
-        n_cam = dr.width(ray)
+        n_cam = self._n_cam = dr.width(ray)
         limit = depth_limit(integ.max_depth)
         learn = ears.learning and ears.forced is None
         self._next = None
@@ -514,6 +525,7 @@ class Wavefront:
         width = dr.width(n)
         n_sum = float(dr.sum(n)[0])
         live = int(dr.count(alive)[0]) if dr.width(dr.count(alive)) else 0
+        self._demand = max(self._demand, (live + n_sum) / self._n_cam)
         s = 1.0
         if n_sum + live > self.max_lanes:
             s = max(self.max_lanes - live, 0) / n_sum
