@@ -224,7 +224,10 @@ class EARS:
             return
         mean = self.pix_s1 / np.maximum(self.pix_n, 1)
         ip2 = np.maximum(mean, 0.0) ** 2 + PIXEL_EPS      # the relMSE's denominator
-        var = np.maximum(s2 / spp - mean ** 2, 0.0)
+        # E[s2 / spp - mean^2] = sigma^2 (1 - 1/N), the mean taken over all N samples so far
+        # (this pass's among them): half the variance after a first pass of 2 spp
+        n_all = np.maximum(self.pix_n, 2)
+        var = np.maximum(s2 / spp - mean ** 2, 0.0) * n_all / (n_all - 1)
         v_rel = float(np.mean(var / ip2))
         k = cost / v_rel if v_rel > 0 else 0.0
         ok_any = False
