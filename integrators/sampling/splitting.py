@@ -25,9 +25,11 @@ shadow ray counting ``SHADOW_COST``, a camera sample ``CAMERA_COST`` more), a(x)
 moment E[L_r^2] where n < 1 (roulette pays the whole second moment; raised by ``RR_MARGIN``,
 since a region's second moment is estimated from few heavy-tailed samples and reads low more
 often than high) and the variance Var[L_r] where n > 1 (splitting averages only the variance).
-n is clamped to [``rr_min``, ``split_max``].  The rule is first-order: at a vertex that carries
-most of its pixel's variance (the first hit of a room lit indirectly) it keeps raising n from
-pass to pass, so ``split_max`` matters there (4 by default).
+n is clamped to [``rr_min``, ``split_max``].  The rule is first-order (V and C include the
+vertex's own share, w^2 a / n and n c); iterated over the passes, its fixed point is the exact
+optimum n^2 = w^2 a C_o / (V_o c), C_o and V_o the cost and variance of everything else, which
+is large where a vertex carries most of its pixel's variance (the first hit of a room lit
+indirectly): ``split_max`` bounds it there (4 by default).
 
 **What is learned, and where.**  Per region of two
 :class:`~integrators.sampling.learning.RegionGrid` (position and normal octant, a fine one and
@@ -84,9 +86,18 @@ by about 0.4, to no splitting at all.
 the camera samples, so comparisons can be made per ray as well as per second.
 
 **Limits.**  JIT variants only (the wavefront is Dr.Jit arrays; ``nee_path`` refuses
-``rr=adaptive`` in scalar variants in one line).  Per ray the wavefront costs more than Mitsuba's
-megakernel (state written and gathered per bounce, a few host synchronisations per bounce),
-which the efficiency figures in ``benchmarks/results/ears`` include.
+``rr=adaptive`` in scalar variants in one line).  Per unit of work (rays, a shadow ray counting
+half) a pass costs about 1.7x Mitsuba's megakernel on the LLVM backend (glossy scene, learned
+policy, learning frozen: 2.1 s against nee_path's 0.45 s for 2.9x its rays): the replicated
+bounces (state written and gathered, compaction, host synchronisations) and a tail loop whose
+SIMD packets idle while their last lanes finish.  Measured and not kept: compacting the tail
+every 4 bounces (kernel time 0.72x, but the extra launches and traces ate it: 0.99x overall);
+reusing the light samples' BSDF sample for the continuation (no faster: its state costs what the
+call saves); each region's splitting variance from the spread of split copies instead of the
+spread of all its records (0.85 of it in the glossy scene: no change in efficiency).  In the
+cost model's units the learned policy is 1.26x ``nee_path``'s efficiency in the glossy scene,
+no better than splitting 4 ways at the first hit; the efficiency figures in
+``benchmarks/results/ears`` include all of it.
 """
 from __future__ import annotations
 
