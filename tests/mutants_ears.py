@@ -41,6 +41,11 @@ MUTANTS = [
      'dr.scatter_reduce(dr.ReduceOp.Add, self.L, st["own"][0], st["sid"], flush,\n'
      '                              mode=DIRECT)',
      'dr.scatter(self.L, st["own"][0], st["sid"], flush)', _T),
+    # batches sized for two lanes per camera sample whatever the last pass asked for: the lane
+    # cap scales the factors down (no bias, but not the learned policy)
+    ("ears-batch-ignores-demand", _S,
+     "demand = min(max(self.ears.lane_demand, 2.0), 2.0 * self.ears.split_max + 1.0)",
+     "demand = 2.0", _T),
     # the throughput rule (where nothing is learned) applied without dividing the survivors
     # by their survival probability
     ("ears-throughput-rule-uncompensated", _S,

@@ -120,6 +120,22 @@ def test_lanes_bounded_with_maximal_splitting():
     assert rays[8.0] > 1.5 * rays[1.0], rays
 
 
+def test_batches_leave_room_for_the_copies():
+    """A batch holds only as many camera samples as leave room for the copies the previous
+    pass asked for, so the cap does not scale (distort) the factors: with n = 1.5 at every
+    vertex (2.25 and 3.4 lanes per camera sample at the second and third replicated bounce)
+    the first pass, sized for 2 lanes per camera sample, is capped, the second is not."""
+    scene = mi.load_file(str(ROOT / "scenes" / "cornell_box.xml"), res="16")
+    it = ears(max_depth=6, max_lanes=4096)
+    it.forced_factor = splitting.fixed_factor(1.5)
+    capped = []
+    for k in range(2):
+        mi.render(scene, integrator=it, spp=64, seed=k)
+        capped.append(it.stats["capped_bounces"])
+        assert it.stats["max_lanes"] <= 4096
+    assert capped[0] > 0 and capped[1] == 0, capped
+
+
 MEMORY_CHILD = r"""
 import json, resource, sys
 import numpy as np, mitsuba as mi, integrators

@@ -77,13 +77,15 @@ before the rounding from the n alone (so still unbiased: each copy's weight is 1
 bounds sum floor(s n + u) by s sum n + A <= cap.  Memory is then independent of the samples per
 pixel.  The scaling changes the learned policy (every vertex of the bounce splits less and
 rolls more), so a batch holds only as many camera samples as leave room for the copies: cap /
-D, D the largest (A + sum n) per camera sample of a bounce in the previous pass (2 in the
-first, never more than 2 ``split_max`` + 1).  With half the cap per batch, as before, the
+(1.1 D), D the largest (A + sum n) per camera sample of a bounce in the previous pass, divided
+by the product of the cap's scalings before it in its batch (2 in the first pass, never more
+than 2 ``split_max`` + 1).  With half the cap per batch, as before, the
 learned splits of a 64-spp pass in the glossy scene (mean n 2.5 at the first hit) were scaled
 by about 0.4, to no splitting at all.
 
 **Cost.**  ``stats`` counts what was traced: camera rays, continuation rays, shadow rays, and
-the camera samples, so comparisons can be made per ray as well as per second.
+the camera samples, so comparisons can be made per ray as well as per second; and the bounces
+whose factors the lane cap scaled (``capped_bounces``).
 
 **Limits.**  JIT variants only (the wavefront is Dr.Jit arrays; ``nee_path`` refuses
 ``rr=adaptive`` in scalar variants in one line).  Per unit of work (rays, a shadow ray counting
@@ -295,7 +297,7 @@ class Wavefront:
     def __init__(self, integ, ears: EARS, max_lanes: int):
         self.integ, self.ears, self.max_lanes = integ, ears, int(max_lanes)
         self.stats = dict(camera_rays=0, continuation_rays=0, shadow_rays=0, camera_samples=0,
-                          max_lanes=0, bounces=0, batches=0)
+                          max_lanes=0, bounces=0, batches=0, capped_bounces=0)
 
     # ---- camera samples ----------------------------------------------------------------------
     @staticmethod
@@ -371,6 +373,7 @@ class Wavefront:
         integ, ears = self.integ, self.ears
         sel = integ.prepare(scene)
         n_cam = self._n_cam = dr.width(ray)
+        self._scale = 1.0       # product of the cap's scalings so far in this batch
         limit = depth_limit(integ.max_depth)
         learn = ears.learning and ears.forced is None
         self._next = None
@@ -539,10 +542,13 @@ class Wavefront:
         width = dr.width(n)
         n_sum = float(dr.sum(n)[0])
         live = int(dr.count(alive)[0]) if dr.width(dr.count(alive)) else 0
-        self._demand = max(self._demand, (live + n_sum) / self._n_cam)
+        # the demand as if no earlier bounce of the batch had been scaled by the cap
+        self._demand = max(self._demand, (live + n_sum) / (self._n_cam * self._scale))
         s = 1.0
         if n_sum + live > self.max_lanes:
             s = max(self.max_lanes - live, 0) / n_sum
+            self.stats["capped_bounces"] += 1
+            self._scale *= max(s, 1e-6)
         ns = n * dr.opaque(mi.Float, s)
         counts = mi.UInt32(dr.floor(ns + u))
         counts = dr.select(alive & (ns > 0), counts, 0)
