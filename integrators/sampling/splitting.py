@@ -62,14 +62,15 @@ exclusive prefix sum of the counts gives each parent's first slot; a scatter of 
 inclusive prefix sum give every slot its parent), and the state is gathered (inside the next
 bounce's kernel).  Each lane carries its camera sample's index; when a batch has no live lane
 left, its camera samples are splatted into the film (Mitsuba's ``ImageBlock``, with the film's
-reconstruction filter).  Per ray a bounce of the wavefront costs about 1.8x a bounce of
-Mitsuba's megakernel (the state written and gathered, a few host synchronisations), a loop in
-one kernel about 1.2x, so only the first vertices of a path, where splitting pays, are
-replicated: after ``LEARN_DEPTH`` + 1 of them the lanes finish in one kernel, a loop over the
-bounces with roulette only (:meth:`Wavefront.tail`; n clamped to 1).  Splitting deeper was
-measured not to pay (indirect room and glossy scene, 128 spp: 0.70x and 0.56x of the
-baseline's efficiency with splits up to the fourth vertex and records at three, 0.80x / 0.62x
-with the tail after the records, 0.90x / 0.67x as now).
+reconstruction filter).  With every lane of the same policy (the throughput rule), a bounce of
+the wavefront costs about 1.8x a bounce of Mitsuba's megakernel in wall time (the state
+written and gathered, the compaction's kernels, host synchronisations), a loop in one kernel
+1.3-1.5x, so only the first vertices of a path, where splitting pays, are replicated: after
+``LEARN_DEPTH`` + 1 of them the lanes finish in one kernel, a loop over the bounces with
+roulette only (:meth:`Wavefront.tail`; n clamped to 1).  Splitting deeper was measured not to
+pay (indirect room and glossy scene, 128 spp, efficiency relative to the baseline: 0.70x and
+0.56x with splits up to the fourth vertex and records at three, 0.90x / 0.67x as now; glossy
+scene with the batches sized as below, records at 1 / 2 / 3 bounces: 0.58x / 0.80x / 0.67x).
 
 **Memory.**  At most ``max_lanes`` lanes are alive: where the copies of a bounce could pass the
 cap, every n of that bounce is scaled by s = (cap - A) / sum n (A the live lanes), computed
