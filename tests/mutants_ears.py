@@ -49,6 +49,6 @@ MUTANTS = [
     # the throughput rule (where nothing is learned) applied without dividing the survivors
     # by their survival probability
     ("ears-throughput-rule-uncompensated", _S,
-     "return dr.select(rr, beta * safe_div(1.0, q), beta), ~rr | (u < q)",
-     "return beta, ~rr | (u < q)", _T),
+     "        beta, survives = self.ears.throughput_roulette(",
+     "        _, survives = self.ears.throughput_roulette(", _T),
 ]

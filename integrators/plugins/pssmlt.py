@@ -890,8 +890,8 @@ BDPT_CHAINS = 1 << 14
 #: at 8 its caustic errors double, so it keeps no cap.
 BDPT_IMPORTANCE_CAP = 8.0
 
-#: large-step probability of the bdpt estimator when ``large_step`` is not given: bdpt finds the caustic and glass-shade paths by itself, so the
-#: chains gain more from its independent samples (large steps, each splatted with Kelemen's
+#: large-step probability of the bdpt estimator when ``large_step`` is not given: bdpt finds
+#: the caustic and glass-shade paths by itself, so the chains gain more from its independent samples (large steps, each splatted with Kelemen's
 #: weight) than from small steps, and a chain on a rare bright path leaves it sooner (after
 #: about I / (mean I x large_step) steps).  Measured (64 x 64, 6 s, 3 repeats, medians,
 #: equal-time relMSE / path's against a bdpt reference, large_step 0.3 | 0.45 | 0.6 | 0.8):

@@ -58,7 +58,6 @@ PARAM = Param("light_selection", "choice", "power", choices=MODES,
 
 #: candidates per light sample of light_selection=ris
 CANDIDATES = 4
-
 CANDIDATES_PARAM = Param("light_candidates", "int", CANDIDATES, min=1, max=64,
                          doc="light_selection=ris: lights drawn from the light tree per light "
                              "sample, one kept by resampling (1: the tree's own choice).")

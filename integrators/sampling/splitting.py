@@ -110,6 +110,7 @@ import numpy as np
 
 from ..common import depth_limit, emitted, luminance, record_once, safe_div
 from .learning import RegionGrid
+from .roulette import roulette
 
 #: bounces whose vertices keep records (statistics of L_r and cost per region); one more
 #: bounce is replicated, the rest runs in the tail kernel
@@ -129,8 +130,6 @@ RR_MARGIN = 2.0
 #: cost of a camera sample before its first bounce (camera ray, its generation and the film
 #: splat) in the same unit: what splitting at the first hit saves per copy
 CAMERA_COST = 2.0
-#: the throughput rule's survival cap (Mitsuba's path, pbrt)
-THROUGHPUT_CAP = 0.95
 #: atomic scatter-adds (the default may replicate the target per thread, with its size baked
 #: into the kernel: a recompilation whenever a wavefront's width changes)
 DIRECT = dr.ReduceMode.Direct
@@ -218,12 +217,12 @@ class EARS:
 
     def throughput_roulette(self, beta, eta, depth, classic, sampler, active):
         """The throughput rule after a copy's BSDF sample where its vertex had nothing learned
-        (``classic``), from ``rr_depth`` on: (beta, survives)."""
-        rr = classic & (depth >= self.rr_depth)
-        q = dr.minimum(dr.max(mi.unpolarized_spectrum(beta), axis=0) * dr.square(eta),
-                       THROUGHPUT_CAP)
+        (``classic``), from ``rr_depth`` on: the shared rule of
+        :func:`~integrators.sampling.roulette.roulette` (elsewhere the depth it sees is 0, below
+        any ``rr_depth``).  Returns (beta, active and surviving)."""
         u = sampler.next_1d(active)
-        return dr.select(rr, beta * safe_div(1.0, q), beta), ~rr | (u < q)
+        return roulette("throughput", self.rr_depth, 0.0, beta, eta,
+                        dr.select(classic, depth, 0), u, active)
 
     # ---- between passes ------------------------------------------------------------------
     def learn(self, spp: int):
