@@ -44,8 +44,11 @@ METHODS = {
     "nee_path_split4": ({"type": "nee_path", "rr": "throughput", "split": 4},
                         "`nee_path`, 4 continuations from the first hit, throughput roulette"),
     "ears": ({"type": "nee_path", "rr": "adaptive"},
-             "`nee_path rr=adaptive`: EARS roulette and splitting at every vertex, learned from "
-             "the render's own earlier passes"),
+             "`nee_path rr=adaptive` (default `split_policy=never`): EARS's learned roulette at "
+             "every vertex, learned from the render's own earlier passes, one kernel"),
+    "ears_split": ({"type": "nee_path", "rr": "adaptive", "split_policy": "always"},
+                   "`nee_path rr=adaptive split_policy=always`: EARS roulette and splitting, the "
+                   "first hit split by path replication"),
 }
 BASELINE = "nee_path"
 #: fractions of a budget per pass (doubling passes)

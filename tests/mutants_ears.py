@@ -34,7 +34,20 @@ MUTANTS = [
      "alive = act & si_n.is_valid() & (depth < limit)\n        L_nee", _T),
     # the tail's roulette without its 1/n
     ("ears-tail-roulette-uncompensated", _S,
-     "            beta *= copy_weight(q)\n", "", _T),
+     "            beta *= copy_weight(q)\n            if dr.hint(len(regs)",
+     "            if dr.hint(len(regs)", _T),
+    # the one-kernel roulette (classic / roulette passes) without its 1/n, at the first hit
+    # and at the later vertices
+    ("ears-kernel-first-hit-roulette-uncompensated", _S,
+     "        beta *= copy_weight(q)\n        # record k",
+     "        # record k", _T),
+    ("ears-kernel-roulette-uncompensated", _S,
+     "            beta *= copy_weight(q)\n            blum =",
+     "            blum =", _T),
+    # the copies of a split vertex start the tail without a BSDF sample of their own (they
+    # would take the zeros the tail starts with, or, had it been kept, their parent's)
+    ("ears-tail-copies-share-sample", _S,
+     "            if fresh is not None:", "            if False:", _T),
     # contributions written instead of added: the copies of a camera sample overwrite each
     # other (and the first hit's emission)
     ("ears-contribution-overwrites", _S,

@@ -39,6 +39,10 @@ def ears(**kw):
 
 
 def random_ears(lo=0.1, hi=8.0, **kw):
+    """Random factors at every vertex: every vertex may split (split_depth beyond any path,
+    split_policy always unless given)."""
+    kw.setdefault("split_depth", 64)
+    kw.setdefault("split_policy", "always")
     it = ears(**kw)
     it.forced_factor = splitting.random_factors(lo, hi)
     return it
@@ -50,6 +54,50 @@ def test_closed_box_random_factors_every_vertex(max_depth):
     # vertex), so the relative s.e. is below 0.5 % at a fraction of the usual budget
     assert_unbiased(*closed_box(max_depth=max_depth, spp=256), random_ears(max_depth=max_depth),
                     spp=256)
+
+
+def test_closed_box_random_factors_first_hit_then_tail():
+    """Splitting at the first hit only (the default split_depth): the copies start the tail
+    kernel with a BSDF sample of their own, then continue with the one drawn with each vertex's
+    light samples; max_depth 8, so the tail's roulette (survival min(n, 1)) acts at up to six
+    vertices and carries a sixth of the value."""
+    assert_unbiased(*closed_box(max_depth=8, spp=256), random_ears(max_depth=8, split_depth=1),
+                    spp=256)
+
+
+def test_closed_box_random_factors_roulette_kernel():
+    """Roulette only (split_policy=never): every path in one kernel, the factors clamped to
+    one (survival n), the first hit included."""
+    it = random_ears(max_depth=4, split_policy="never")
+    assert_unbiased(*closed_box(max_depth=4, spp=512), it, spp=512, max_spp=2048)
+    assert it.stats["mode"] == "roulette" and it.stats["max_lanes"] == 0
+
+
+def test_modes_tried_then_measured():
+    """split_policy=measured: the classic first pass (nothing learned), then a roulette-only
+    pass and a splitting pass, then the learned mode measured more efficient."""
+    scene = mi.load_file(str(ROOT / "scenes" / "cornell_box.xml"), res="16")
+    it = ears(max_depth=6, split_policy="measured")
+    modes = []
+    for k in range(5):
+        mi.render(scene, integrator=it, spp=32, seed=k)
+        modes.append(it.stats["mode"])
+    assert modes[:3] == ["classic", "roulette", "split"], modes
+    assert set(it.ears.measured) == set(splitting.LEARNED_MODES)
+    best = max(splitting.LEARNED_MODES, key=lambda m: it.ears.measured[m])
+    assert modes[3] in splitting.LEARNED_MODES and it.ears.mode == best
+
+
+def test_default_policy_roulette_only():
+    """The default (split_policy=never): after the classic first pass every pass runs the
+    learned roulette in one kernel (no replication: no lanes held)."""
+    scene = mi.load_file(str(ROOT / "scenes" / "cornell_box.xml"), res="16")
+    it = ears(max_depth=6)
+    modes = []
+    for k in range(3):
+        mi.render(scene, integrator=it, spp=32, seed=k)
+        modes.append((it.stats["mode"], it.stats["max_lanes"]))
+    assert modes == [("classic", 0), ("roulette", 0), ("roulette", 0)], modes
 
 
 def test_closed_box_random_factors_lane_cap():
@@ -83,15 +131,16 @@ def test_same_image_as_mitsuba_path_small():
     noise guard is relaxed to 1.5 % (a 15 % error gives |t| >= 10); the 0.5 % check of
     unbiasedness against path is the slow test below and the closed-box tests."""
     scene = mi.load_file(str(ROOT / "scenes" / "cornell_box.xml"), res="8")
-    it = ears(max_depth=8)
+    it = ears(max_depth=8, split_policy="always")     # the first hit split, then the tail
     it.forced_factor = splitting.random_factors(0.3, 3.0)
     assert_unbiased(scene, {"type": "path", "max_depth": 8}, it, spp=256, batches=16,
                     max_rel_se=0.015)
 
 
 @pytest.mark.slow
-def test_same_image_as_mitsuba_path(cornell):
-    it = ears(max_depth=8)
+@pytest.mark.parametrize("policy", ["never", "always"])
+def test_same_image_as_mitsuba_path(cornell, policy):
+    it = ears(max_depth=8, split_policy=policy)
     assert_unbiased(cornell, {"type": "path", "max_depth": 8}, it, spp=512, batches=16)
     assert it.ears.learned
 
@@ -109,7 +158,7 @@ def test_lanes_bounded_with_maximal_splitting():
     scene = mi.load_file(str(ROOT / "scenes" / "cornell_box.xml"), res="16")
     rays = {}
     for n in (1.0, 8.0):
-        it = ears(max_depth=10, split_max=8, max_lanes=4096)
+        it = ears(max_depth=10, split_max=8, max_lanes=4096, split_depth=3, split_policy="always")
         it.forced_factor = splitting.fixed_factor(n)
         img = np.array(mi.render(scene, integrator=it, spp=16, seed=3))
         assert np.all(np.isfinite(img)) and img.mean() > 0
@@ -126,7 +175,7 @@ def test_batches_leave_room_for_the_copies():
     vertex (2.25 and 3.4 lanes per camera sample at the second and third replicated bounce)
     the first pass, sized for 2 lanes per camera sample, is capped, the second is not."""
     scene = mi.load_file(str(ROOT / "scenes" / "cornell_box.xml"), res="16")
-    it = ears(max_depth=6, max_lanes=4096)
+    it = ears(max_depth=6, max_lanes=4096, split_depth=3, split_policy="always")
     it.forced_factor = splitting.fixed_factor(1.5)
     capped = []
     for k in range(2):
@@ -142,7 +191,7 @@ import numpy as np, mitsuba as mi, integrators
 from integrators.sampling import splitting
 scene = mi.load_file(sys.argv[1], res="16")
 it = mi.load_dict({"type": "nee_path", "rr": "adaptive", "max_depth": 12, "split_max": 8,
-                   "max_lanes": 1 << 14})
+                   "max_lanes": 1 << 14, "split_policy": "always", "split_depth": 64})
 it.forced_factor = splitting.fixed_factor(8.0)
 img = np.array(mi.render(scene, integrator=it, spp=int(sys.argv[2]), seed=1))
 print(json.dumps({"peak_kib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss,

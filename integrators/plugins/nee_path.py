@@ -60,6 +60,14 @@ class NEEPath(IntegratorTemplate):
               doc="rr=adaptive: smallest survival probability of a vertex."),
         Param("split_max", "int", 4, min=1, max=64,
               doc="rr=adaptive: largest number of copies a vertex splits into."),
+        Param("split_depth", "int", 1, min=1, max=64,
+              doc="rr=adaptive: vertices from the first hit where a path may split (by path "
+                  "replication); deeper ones use roulette only."),
+        Param("split_policy", "choice", "never", choices=splitting.POLICIES,
+              doc="rr=adaptive: never (learned roulette only, every path in one kernel), "
+                  "always (learned splitting by path replication at the first split_depth "
+                  "vertices), measured (one pass of each, then the more efficient as "
+                  "measured in the render)."),
         Param("max_lanes", "int", 1 << 20, min=1 << 10, max=1 << 26,
               doc="rr=adaptive: paths alive at once (bounds memory; split factors are scaled "
                   "down where a bounce would pass it)."),
@@ -98,7 +106,8 @@ class NEEPath(IntegratorTemplate):
 
     def scene_warnings(self, scene):
         if self.adaptive:    # a new scene: learn from scratch
-            self.ears = splitting.EARS(scene, self.rr_min, self.split_max, self.rr_depth)
+            self.ears = splitting.EARS(scene, self.rr_min, self.split_max, self.rr_depth,
+                                       self.split_depth, self.split_policy)
         return []
 
     def render(self, scene, sensor=0, seed=0, spp=0, develop=True, evaluate=True):
@@ -114,11 +123,15 @@ class NEEPath(IntegratorTemplate):
         film = sensor.film()
         film.prepare([])
         self.ears.forced = self.forced_factor
+        if self.forced_factor is not None:      # (tests: factors given, no mode to learn)
+            self.ears.mode = self.ears.next_mode()
         wave = splitting.Wavefront(self, self.ears, self.max_lanes)
-        block = wave.render(scene, sensor, int(seed), spp)
+        mode = self.ears.mode
+        with splitting.pass_clock() as seconds:
+            block = wave.render(scene, sensor, int(seed), spp)
         if self.ears.learning:
-            self.ears.learn(spp)
-        self.stats = wave.stats
+            self.ears.learn(spp, seconds[0])
+        self.stats = dict(wave.stats, mode=mode)
         film.put_block(block)
         return film.develop() if develop else block.tensor()
 

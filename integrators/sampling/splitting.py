@@ -104,11 +104,14 @@ no better than splitting 4 ways at the first hit; the efficiency figures in
 """
 from __future__ import annotations
 
+import contextlib
+import time
+
 import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ..common import depth_limit, emitted, luminance, record_once, safe_div
+from ..common import depth_limit, emitted, lnot, luminance, record_once, safe_div
 from .learning import RegionGrid
 from .roulette import roulette
 
@@ -130,12 +133,48 @@ RR_MARGIN = 2.0
 #: cost of a camera sample before its first bounce (camera ray, its generation and the film
 #: splat) in the same unit: what splitting at the first hit saves per copy
 CAMERA_COST = 2.0
+#: how a pass runs: ``classic`` (nothing learned, or measured best: the throughput rule at every
+#: vertex, records kept), ``roulette`` (the learned factors clamped to one: roulette only, every
+#: path in one kernel), ``split`` (the learned factors, splitting by replication at the first
+#: ``split_depth`` vertices).  The first and second run in Wavefront.roulette_kernel.
+MODES = ("classic", "roulette", "split")
+#: the modes the ``measured`` policy chooses between (``classic`` runs only while nothing is
+#: learned: measured against the learned modes, one early pass's heavy-tailed variance made it
+#: the choice in the indirect room, at 0.76x the efficiency of roulette)
+LEARNED_MODES = ("roulette", "split")
+#: ``split_policy``: ``never`` (roulette only), ``always`` (split once learned), ``measured``
+#: (each learned mode once, then the more efficient as measured)
+POLICIES = ("never", "always", "measured")
 #: atomic scatter-adds (the default may replicate the target per thread, with its size baked
 #: into the kernel: a recompilation whenever a wavefront's width changes)
 DIRECT = dr.ReduceMode.Direct
 #: relative errors are (x - I_p)^2 / (I_p^2 + PIXEL_EPS), the relMSE of the benchmarks
 #: (benchmarks.metrics.EPS): without it the darkest pixels' relative variance decides everything
 PIXEL_EPS = 0.01
+
+
+@contextlib.contextmanager
+def pass_clock():
+    """Seconds of the block, all launched work finished, less the time Dr.Jit spent compiling
+    kernels (a mode's first pass compiles its kernels: counted, a fast mode would read slow on
+    a small pass).  Yields a one-element list that holds the seconds after the block.  Where the
+    caller already records the kernel history, it is left alone and the seconds are wall time."""
+    out = [0.0]
+    own = not dr.flag(dr.JitFlag.KernelHistory)
+    if own:
+        dr.set_flag(dr.JitFlag.KernelHistory, True)
+        dr.kernel_history()                        # (reading it clears it)
+    t0 = time.perf_counter()
+    try:
+        yield out
+    finally:
+        dr.sync_thread()
+        out[0] = time.perf_counter() - t0
+        if own:
+            compiling = sum(k.get("codegen_time", 0.0) + k.get("backend_time", 0.0)
+                            for k in dr.kernel_history()) / 1000.0
+            dr.set_flag(dr.JitFlag.KernelHistory, False)
+            out[0] = max(out[0] - compiling, 0.0)
 
 
 def seed_mix(*xs: int) -> int:
@@ -158,7 +197,8 @@ class EARS:
     (used where nothing is learned).  ``forced``: a function (sampler, active) -> n that
     replaces the learned n at every vertex (tests: random or maximal factors)."""
 
-    def __init__(self, scene, rr_min: float, split_max: int, rr_depth: int):
+    def __init__(self, scene, rr_min: float, split_max: int, rr_depth: int,
+                 split_depth: int = 1, policy: str = "never"):
         # a fine and a coarse grid (the fine cell's factors where it has enough copies, else
         # the coarse cell's): statistics: sum L_r^2, sum L_r, copies, sum cost
         self.grid = RegionGrid(scene, stats=4, resolution=FINE)
@@ -171,6 +211,16 @@ class EARS:
         #: largest (live lanes + sum of n) per camera sample of a bounce in the last pass
         self.lane_demand = 2.0
         self.learned = False
+        #: vertices of a path (from the first hit) that may split, by replication, in "split"
+        #: passes; the rest run in the tail kernel with roulette only
+        self.split_depth = int(split_depth)
+        #: how the passes run (``POLICIES``) and the mode of the next pass (``MODES``), with
+        #: the efficiency measured for each mode so far (1 / (relative variance x cost) per
+        #: camera sample of its last pass)
+        self.policy = policy
+        self.mode = "classic"
+        self.measured = {}
+        self.last_pass = {}
         self.forced = None
         #: set False to freeze what was learned
         self.learning = True
@@ -199,7 +249,9 @@ class EARS:
         more continuations are traced than the classic roulette traces."""
         cell = (self.grid.cell_of(si), self.coarse.cell_of(si))
         classic = mi.Bool(False)
-        if self.forced is not None:
+        if self.mode == "classic" and self.forced is None:
+            n, classic = dr.full(mi.Float, 1.0, dr.width(active)), mi.Bool(True)
+        elif self.forced is not None:
             n = dr.clip(self.forced(sampler, active), self.rr_min, self.split_max)
         else:
             f_m = self.grid.lookup(cell[0], active)
@@ -225,8 +277,9 @@ class EARS:
                         dr.select(classic, depth, 0), u, active)
 
     # ---- between passes ------------------------------------------------------------------
-    def learn(self, spp: int):
-        """Factors for the next pass from the statistics so far (see the module docstring)."""
+    def learn(self, spp: int, seconds: float = 0.0):
+        """Factors for the next pass from the statistics so far (see the module docstring);
+        ``seconds``: the pass's wall time (the efficiency of its mode, ``next_mode``)."""
         self.passes += 1
         s1 = np.array(self.pass_s1, np.float64)
         s2 = np.array(self.pass_s2, np.float64)
@@ -249,10 +302,41 @@ class EARS:
             grid.set_table(f_m)
             setattr(self, attr, mi.Float(f_v.astype(np.float32)))
             grid.stats = grid.stats * DECAY
+            # (evaluated now: a kernel scattering into it would evaluate it in mid-trace and
+            # split itself in pieces that each run the loop)
+            dr.eval(grid.stats)
             ok_any |= bool(ok.any())
         self.inv_pixel = mi.Float((1.0 / np.sqrt(ip2)).astype(np.float32))
         self.learned = ok_any
         self.v_rel, self.cost = v_rel, cost
+        # each mode's last pass, its efficiency measured against the current pixel means (the
+        # same denominators for every mode: a pass measured against the noisier means of an
+        # early pass would read less variance)
+        # (the time per camera sample: the modes' costs per ray differ, e.g. a split pass's
+        # replication; without a time, the cost model's units)
+        per_sample = seconds / max(s1.size * spp, 1) if seconds > 0 else cost
+        if self.mode in LEARNED_MODES:
+            self.last_pass[self.mode] = (s2, spp, per_sample)
+        for m, (s2_m, spp_m, t_m) in self.last_pass.items():
+            v_m = float(np.mean(np.maximum(s2_m / spp_m - mean ** 2, 0.0) / ip2))
+            self.measured[m] = 1.0 / (v_m * t_m) if v_m > 0 and t_m > 0 else 0.0
+        self.mode = self.next_mode()
+
+    def next_mode(self) -> str:
+        """The mode of the next pass (see ``MODES``).  Nothing learned: ``classic``.  Policy
+        ``never`` / ``always``: ``roulette`` / ``split``.  ``measured``: each learned mode once
+        (roulette, then split), then the one of higher measured efficiency (its estimate
+        renewed by every pass it runs)."""
+        if self.forced is not None:
+            return "roulette" if self.policy == "never" else "split"
+        if not self.learned:
+            return "classic"
+        if self.policy != "measured":
+            return "split" if self.policy == "always" else "roulette"
+        for m in LEARNED_MODES:
+            if m not in self.measured:
+                return m
+        return max(LEARNED_MODES, key=lambda m: self.measured[m])
 
     @staticmethod
     def factors(st: np.ndarray, k: float):
@@ -268,6 +352,41 @@ class EARS:
         f_m = np.where(ok, RR_MARGIN * np.sqrt(m2 * k / c), -1.0)
         f_v = np.where(ok, np.sqrt(v * k / c), -1.0)
         return f_m, f_v, ok
+
+
+# ---- the records of the megakernel (Wavefront.roulette_kernel): one tuple per vertex depth j,
+# (fine cell, coarse cell, luminance of the surviving copy's beta, sum of the luminance its
+# continuation added, sum of its cost); outside the kernel's function because Dr.Jit's syntax
+# rewriting does not take comprehensions with tuple targets
+def records_add(recs, depth, lc, k, first=0):
+    """Add a continuation's contribution ``lc`` and cost ``k`` to the records made before it
+    (record j, of the vertex at depth first + j, where the continuation's new depth exceeds
+    that)."""
+    out = []
+    for j, (a, b, bl, S, R) in enumerate(recs):
+        after = depth > first + j
+        out.append((a, b, bl, S + dr.select(after, lc, 0.0), R + dr.select(after, k, 0.0)))
+    return out
+
+
+def records_start(recs, depth, cell, blum, first=0):
+    """Make the record of the vertex at ``depth`` (its cells and its copy's throughput
+    luminance; zero where the copy was rouletted)."""
+    out = []
+    for j, (a, b, bl, S, R) in enumerate(recs):
+        here = depth == first + j
+        out.append((dr.select(here, cell[0], a), dr.select(here, cell[1], b),
+                    dr.select(here, blum, bl), S, R))
+    return out
+
+
+def records_flush(ears, recs):
+    """The records' L_r = S / beta, its square, the count and the cost to both grids."""
+    for a, b, bl, S, R in recs:
+        L_r = safe_div(S, bl)
+        vals = [L_r * L_r, L_r, mi.Float(1.0), R]
+        ears.grid.add(a, vals, bl > 0, mode=DIRECT)
+        ears.coarse.add(b, vals, bl > 0, mode=DIRECT)
 
 
 def copy_weight(n):
@@ -296,6 +415,8 @@ class Wavefront:
 
     def __init__(self, integ, ears: EARS, max_lanes: int):
         self.integ, self.ears, self.max_lanes = integ, ears, int(max_lanes)
+        split = ears.mode == "split"
+        self.replicated = ears.split_depth if split else 0
         self.stats = dict(camera_rays=0, continuation_rays=0, shadow_rays=0, camera_samples=0,
                           max_lanes=0, bounces=0, batches=0, capped_bounces=0)
 
@@ -344,8 +465,9 @@ class Wavefront:
         w, h = int(size[0]), int(size[1])
         self.ears.film((h, w))
         total = w * h * spp
+        kernel = self.replicated == 0
         demand = min(max(self.ears.lane_demand, 2.0), 2.0 * self.ears.split_max + 1.0)
-        batch = max(1, int(self.max_lanes / (1.1 * demand)))
+        batch = self.max_lanes if kernel else max(1, int(self.max_lanes / (1.1 * demand)))
         self._demand = 0.0
         block = film.create_block()
         sampler = mi.load_dict({"type": "independent"})
@@ -355,7 +477,10 @@ class Wavefront:
             # (the offset opaque: a literal would compile the kernel again for every batch)
             idx = dr.arange(mi.UInt32, n) + dr.opaque(mi.UInt32, b0)
             ray, weight, pos, pixel = self.camera_rays(sensor, sampler, idx, spp)
-            L, valid = self.batch(scene, sampler, ray, pixel, seed, b0)
+            if kernel:
+                L, valid = self.kernel_batch(scene, sampler, ray, pixel)
+            else:
+                L, valid = self.batch(scene, sampler, ray, pixel, seed, b0)
             ADIntegrator._splat_to_block(block, film, pos, value=L * weight, weight=1.0,
                                          alpha=dr.select(valid, mi.Float(1), mi.Float(0)),
                                          aovs=[], wavelengths=ray.wavelengths)
@@ -367,6 +492,24 @@ class Wavefront:
             self.stats["camera_samples"] += n
         self.ears.lane_demand = self._demand
         return block
+
+    def kernel_batch(self, scene, sampler, ray, pixel):
+        """Every path of one batch in the megakernel (:meth:`roulette_kernel`): (L, valid)."""
+        integ, ears = self.integ, self.ears
+        sel = integ.prepare(scene)
+        n_cam = dr.width(ray)
+        learn = ears.learning and ears.forced is None
+        L, valid, cost, traced = self.roulette_kernel(scene, sel, sampler, ray, pixel,
+                                                      depth_limit(integ.max_depth), learn)
+        # one kernel: the loop's outputs (its scatters go with them) before the reductions
+        dr.eval(L, valid, cost, traced)
+        work, rays = float(dr.sum(cost)[0]), int(dr.sum(traced)[0])
+        self.stats["camera_rays"] += n_cam
+        self.stats["continuation_rays"] += rays
+        self.stats["shadow_rays"] += int(round((work - rays) / SHADOW_COST))
+        ears.pass_cost += work + CAMERA_COST * n_cam
+        self._demand = max(self._demand, 1.0)
+        return L, valid
 
     def batch(self, scene, sampler, ray, pixel, seed: int, b0: int):
         """Every path of one batch of camera samples: (L per camera sample, valid)."""
@@ -389,7 +532,7 @@ class Wavefront:
         alive = valid & (1 < limit)
         # the first hit's light samples, once per camera sample (the copies split only the
         # continuation)
-        L_nee, k0 = self.light(scene, sel, sampler, si, alive)
+        L_nee, k0, _ = self.light(scene, sel, sampler, si, alive)
         self.L += L0 + L_nee
         self.cost = dr.zeros(mi.Float, n_cam) + k0
         sid = dr.arange(mi.UInt32, n_cam)
@@ -402,16 +545,21 @@ class Wavefront:
                 si if self._next is None else self._next)
         self.stats["camera_rays"] += n_cam
         recs = []
-        self.rays = dr.zeros(mi.UInt32, 1)       # continuation rays traced (see continuation)
+        self.traced = 0                         # continuation rays traced
         state = self.replicate(dict(si=si, beta=beta, eta=eta, depth=depth, sid=sid,
                                     pixel=pixel, hist=[], acc=[], classic=classic),
                                n, u, cell, alive, recs,
                                learn)
         bounce = 0
+        if state is not None and self.replicated <= 1:
+            bounce += self.tail(scene, sel, sampler, state, limit, recs,
+                                seed_mix(seed, b0, bounce, 0x7A11), learn)
+            state = None
         while state is not None:
             bounce += 1
             sampler.seed(dr.opaque(mi.UInt32, seed_mix(seed, b0, bounce)), state["width"])
-            si, beta, eta, depth, alive, c, k = self.vertex(scene, sel, sampler, state, limit)
+            si, beta, eta, depth, alive, c, k, act = self.vertex(scene, sel, sampler, state,
+                                                                 limit)
             hist = state["hist"]
             # what this lane added to its camera sample, and since each of its records was made
             # (flushed to the camera sample and the records when the lane ends or splits: one
@@ -422,87 +570,167 @@ class Wavefront:
             u = sampler.next_1d()
             n, classic, cell = ears.factor(si, beta, eta, depth, state["pixel"], sampler, alive)
             # one kernel: what the next wavefront gathers, and the scattered contributions
-            dr.eval(self._next, beta, eta, depth, alive, n, u, cell, classic, own, acc)
+            dr.eval(self._next, beta, eta, depth, alive, n, u, cell, classic, own, acc, act)
+            self.traced += int(dr.count(act)[0])
             state = self.replicate(dict(si=si, beta=beta, eta=eta, depth=depth,
                                         sid=state["sid"], pixel=state["pixel"], hist=hist,
                                         acc=acc, own=own, classic=classic),
                                    n, u, cell, alive, recs, learn and bounce < LEARN_DEPTH)
-            if state is not None and bounce >= LEARN_DEPTH:
+            if state is not None and bounce + 1 >= self.replicated:
                 bounce += self.tail(scene, sel, sampler, state, limit, recs,
-                                    seed_mix(seed, b0, bounce, 0x7A11))
+                                    seed_mix(seed, b0, bounce, 0x7A11), learn)
                 state = None
         self.stats["bounces"] = max(self.stats["bounces"], bounce)
         # the cost of a bounce is 1 + SHADOW_COST per shadow ray: count them from it
         work = float(dr.sum(self.cost)[0])
-        rays = int(self.rays[0])
+        rays = self.traced
         self.stats["continuation_rays"] += rays
         self.stats["shadow_rays"] += int(round((work - rays) / SHADOW_COST))
         if learn:
-            for r in recs:
-                L_r = safe_div(r["S"], r["blum"])
-                vals = [L_r * L_r, L_r, mi.Float(1.0), r["R"]]
-                ears.grid.add(r["cell"][0], vals, r["blum"] > 0, mode=DIRECT)
-                ears.coarse.add(r["cell"][1], vals, r["blum"] > 0, mode=DIRECT)
+            records_flush(ears, [(*r["cell"], r["blum"], r["S"], r["R"]) for r in recs])
         ears.pass_cost += work + CAMERA_COST * n_cam
         dr.eval(ears.grid.stats, ears.coarse.stats)
         return self.L, valid
 
     @record_once
     @dr.syntax
-    def tail(self, scene, sel, sampler, st, limit, recs, seed: int) -> int:
-        """The few paths left of a batch, finished in one kernel (a loop over the bounces)
-        instead of a wavefront per bounce: the same vertex estimate, with roulette only (n
-        clamped to 1: no more copies, so no more replication), survivors weighted 1/n.  What
-        the lanes add goes to their records at the end (no records are made here).  Returns
-        the number of bounces."""
+    def roulette_kernel(self, scene, sel, sampler, ray, pixel, limit, learn: bool):
+        """Every path of a batch in one kernel (Mitsuba's megakernel), with the learned factors
+        clamped to one: roulette with survival n where n < 1, no copies.  The records of the
+        first ``LEARN_DEPTH`` vertices live in registers and go to the grids when the path
+        ends.  Returns (L, valid, cost, continuation rays) per camera sample."""
         ears = self.ears
-        sampler.seed(dr.opaque(mi.UInt32, seed), st["width"])
-        ray = mi.Ray3f(st["ray"])
-        si = st["pi"].compute_surface_interaction(ray, mi.RayFlags.All, True)
-        beta, eta, depth = mi.Spectrum(st["beta"]), mi.Float(st["eta"]), mi.UInt32(st["depth"])
-        sid, pixel, classic = st["sid"], st["pixel"], mi.Bool(st["classic"])
-        L_sum, cost_sum = mi.Spectrum(0.0), mi.Float(0.0)
-        rays = mi.UInt32(0)
-        active = mi.Bool(True)
-        while dr.hint(active, label="ears tail", exclude=[limit, sid, pixel]):
-            _, _, si_n, beta, eta, depth, alive, c, k = self.continuation(
-                scene, sel, sampler, si, beta, eta, depth, classic, limit, active)
-            L_sum += c
-            cost_sum += k
-            rays += 1
-            n, classic, _ = ears.factor(si_n, beta, eta, depth, pixel, sampler, alive)
+        si, L = self.integ.camera_hit(scene, ray, True)
+        valid = si.is_valid()
+        alive = valid & (1 < limit)
+        L_nee, cost, pre = self.light(scene, sel, sampler, si, alive)
+        L += L_nee
+        beta, eta, depth = mi.Spectrum(1.0), mi.Float(1.0), mi.UInt32(0)
+        n, classic, cell = ears.factor(si, beta, eta, depth, pixel, sampler, alive)
+        q = dr.minimum(n, 1.0)
+        alive &= sampler.next_1d() < q
+        beta *= copy_weight(q)
+        # record k: (fine cell, coarse cell, luminance of the copy's beta, sum of its copy's
+        # contributions, sum of their cost), made where the copy of vertex k survived
+        recs = [(cell[0], cell[1], dr.select(alive, luminance(beta), 0.0), mi.Float(0.0),
+                 mi.Float(0.0))]
+        recs += [(mi.UInt32(0), mi.UInt32(0), mi.Float(0.0), mi.Float(0.0), mi.Float(0.0))
+                 for _ in range(LEARN_DEPTH - 1)]
+        active = mi.Bool(alive)
+        # (counted per lane: an atomic counter shared by all lanes cost a tenth of the kernel)
+        traced = mi.UInt32(0)
+        while dr.hint(active, label="ears kernel", exclude=[limit, pixel]):
+            _, _, si_n, beta, eta, depth, alive, c, k, pre, act = self.continuation(
+                scene, sel, sampler, si, beta, eta, depth, classic, limit, active, pre)
+            L += c
+            cost += k
+            traced += dr.select(act, 1, 0)
+            # record j (made at depth j) gathers what every later continuation adds
+            lc = luminance(c)
+            recs = records_add(recs, depth, lc, k)
+            n, classic, cell = ears.factor(si_n, beta, eta, depth, pixel, sampler, alive)
             q = dr.minimum(n, 1.0)
             alive &= sampler.next_1d() < q
             beta *= copy_weight(q)
+            blum = dr.select(alive, luminance(beta), 0.0)
+            recs = records_start(recs, depth, cell, blum)
             si = si_n
             active = alive
+        if learn:
+            records_flush(ears, recs)
+        return L, valid, cost, traced
+
+    @record_once
+    @dr.syntax
+    def tail(self, scene, sel, sampler, st, limit, recs, seed: int, learn: bool) -> int:
+        """The paths left of a batch, finished in one kernel (a loop over the bounces)
+        instead of a wavefront per bounce: the same vertex estimate, with roulette only (n
+        clamped to 1: no more copies, so no more replication), survivors weighted 1/n.  What
+        the lanes add goes to their records at the end.  The records of vertices deeper than
+        the replicated ones but within ``LEARN_DEPTH`` are made here, in registers
+        (:func:`records_start`), and go to the grids when the lane ends.  Returns the number
+        of bounces."""
+        ears = self.ears
+        sampler.seed(dr.opaque(mi.UInt32, seed), st["width"])
+        if "si" in st:
+            si = mi.SurfaceInteraction3f(st["si"])
+        else:
+            si = st["pi"].compute_surface_interaction(mi.Ray3f(st["ray"]), mi.RayFlags.All, True)
+        beta, eta, depth = mi.Spectrum(st["beta"]), mi.Float(st["eta"]), mi.UInt32(st["depth"])
+        sid, pixel, classic = st["sid"], st["pixel"], mi.Bool(st["classic"])
+        L_sum, cost_sum = mi.Spectrum(0.0), mi.Float(0.0)
+        rays, traced = mi.UInt32(0), mi.UInt32(0)
+        # register records for the depths replication did not reach (none if it did)
+        first = len(recs)
+        regs = [(mi.UInt32(0), mi.UInt32(0), mi.Float(0.0), mi.Float(0.0), mi.Float(0.0))
+                for _ in range(LEARN_DEPTH - first if learn else 0)]
+        active = mi.Bool(True)
+        # the copies draw their first BSDF sample; then each lane continues with the one drawn
+        # with its light samples
+        fresh = dr.full(mi.Bool, True, st["width"])
+        pre = (dr.zeros(mi.BSDFSample3f, st["width"]), dr.zeros(mi.Spectrum, st["width"]))
+        while dr.hint(active, label="ears tail", exclude=[limit, sid, pixel]):
+            _, _, si_n, beta, eta, depth, alive, c, k, pre, act = self.continuation(
+                scene, sel, sampler, si, beta, eta, depth, classic, limit, active, pre, fresh)
+            traced += dr.select(act, 1, 0)
+            fresh &= lnot(active)
+            L_sum += c
+            cost_sum += k
+            rays += 1
+            n, classic, cell = ears.factor(si_n, beta, eta, depth, pixel, sampler, alive)
+            q = dr.minimum(n, 1.0)
+            alive &= sampler.next_1d() < q
+            beta *= copy_weight(q)
+            if dr.hint(len(regs) > 0, mode="scalar"):
+                regs = records_add(regs, depth, luminance(c), k, first)
+                regs = records_start(regs, depth, cell, dr.select(alive, luminance(beta), 0.0),
+                                     first)
+            si = si_n
+            active = alive
+        if len(regs) > 0:
+            records_flush(ears, regs)
         dr.scatter_reduce(dr.ReduceOp.Add, self.L, st["own"][0] + L_sum, sid, mode=DIRECT)
         dr.scatter_reduce(dr.ReduceOp.Add, self.cost, st["own"][1] + cost_sum, sid, mode=DIRECT)
         lum_sum = luminance(L_sum)
         for r, hh, (a, b) in zip(recs, st["hist"], st["acc"]):
             dr.scatter_reduce(dr.ReduceOp.Add, r["S"], a + lum_sum, hh, mode=DIRECT)
             dr.scatter_reduce(dr.ReduceOp.Add, r["R"], b + cost_sum, hh, mode=DIRECT)
-        longest = dr.max(rays)
-        dr.eval(self.L, self.cost, longest, [(r["S"], r["R"]) for r in recs])
+        longest, traced = dr.max(rays), dr.sum(traced)
+        dr.eval(self.L, self.cost, longest, traced, [(r["S"], r["R"]) for r in recs])
+        self.traced += int(traced[0])
         return int(longest[0])
 
     def light(self, scene, sel, sampler, si, active):
-        """The light samples at a vertex (:meth:`VertexEstimator.direct`, its BSDF sample
-        unused: each copy of the path draws its own) and their cost: (L, cost)."""
+        """The light samples at a vertex (:meth:`VertexEstimator.direct`) and their cost, and
+        the BSDF sample drawn with them: (L, cost, (BSDF sample, its weight)).  A path that
+        goes on alone continues with that sample (:meth:`continuation`'s ``pre``); the copies
+        of a split vertex draw their own."""
         bsdf = si.bsdf()
         d = self.integ.vertex.direct(scene, sel, sampler, mi.BSDFContext(), si, bsdf, active)
         smooth = mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
         k = dr.select(active & smooth & (sel.count > 0), SHADOW_COST, 0.0)
-        return dr.select(active, d.L, 0.0), k
+        return dr.select(active, d.L, 0.0), k, (d.bs, d.weight)
 
-    def continuation(self, scene, sel, sampler, si, beta, eta, depth, classic, limit, active):
+    def continuation(self, scene, sel, sampler, si, beta, eta, depth, classic, limit, active,
+                     pre=None, fresh=None):
         """One copy's continuation from ``si``: a BSDF sample, its ray, the emission it finds
         (MIS-weighted against the light samples at ``si``), and the light samples at the vertex
-        it reaches.  Returns (ray, pi, si_next, beta, eta, depth, alive, contribution, cost)."""
+        it reaches.  ``pre``: the BSDF sample drawn with the light samples at ``si``, used
+        instead of a new one (except where ``fresh``).  Returns (ray, pi, si_next, beta, eta,
+        depth, alive, contribution, cost, the BSDF sample drawn at si_next, whether a ray was
+        traced)."""
         vx = self.integ.vertex
         ctx = mi.BSDFContext()
         bsdf = si.bsdf()
-        bs, w = bsdf.sample(ctx, si, sampler.next_1d(active), sampler.next_2d(active), active)
+        if pre is None:
+            bs, w = bsdf.sample(ctx, si, sampler.next_1d(active), sampler.next_2d(active),
+                                active)
+        else:
+            bs, w = pre
+            if fresh is not None:
+                bs_f, w_f = bsdf.sample(ctx, si, sampler.next_1d(active & fresh),
+                                        sampler.next_2d(active & fresh), active & fresh)
+                bs, w = dr.select(fresh, bs_f, bs), dr.select(fresh, w_f, w)
         beta = beta * w
         eta = eta * bs.eta
         depth = depth + 1
@@ -512,16 +740,13 @@ class Wavefront:
         ray = si.spawn_ray(si.to_world(bs.wo))
         pi = scene.ray_intersect_preliminary(ray, coherent=False, active=act)
         si_n = pi.compute_surface_interaction(ray, mi.RayFlags.All, act)
-        # one atomic add per SIMD packet (Local: reduced within the packet first)
-        dr.scatter_reduce(dr.ReduceOp.Add, self.rays, mi.UInt32(1), mi.UInt32(0), act,
-                          mode=dr.ReduceMode.Local)
         delta = mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta)
         L_w = vx.emission(scene, sel, si, si_n, [vx.n_b * bs.pdf], delta, act)
         c = dr.select(act, beta * L_w, 0.0)
         alive = act & si_n.is_valid() & (depth + 1 < limit)
-        L_nee, k = self.light(scene, sel, sampler, si_n, alive)
+        L_nee, k, nxt = self.light(scene, sel, sampler, si_n, alive)
         c += beta * L_nee
-        return ray, pi, si_n, beta, eta, depth, alive, c, dr.select(act, 1.0, 0.0) + k
+        return ray, pi, si_n, beta, eta, depth, alive, c, dr.select(act, 1.0, 0.0) + k, nxt, act
 
     def vertex(self, scene, sel, sampler, st, limit):
         """The kernel of one bounce over the live lanes (:meth:`continuation`): the
@@ -530,11 +755,11 @@ class Wavefront:
             si = st["si"]
         else:
             si = st["pi"].compute_surface_interaction(st["ray"], mi.RayFlags.All, True)
-        ray, pi, si_n, beta, eta, depth, alive, c, k = self.continuation(
+        ray, pi, si_n, beta, eta, depth, alive, c, k, _, act = self.continuation(
             scene, sel, sampler, si, st["beta"], st["eta"], st["depth"], st["classic"], limit,
             mi.Bool(True))
         self._next = (ray, pi)
-        return si_n, beta, eta, depth, alive, c, k
+        return si_n, beta, eta, depth, alive, c, k, act
 
     def replicate(self, st, n, u, cell, alive, recs, record: bool):
         """The next wavefront: each lane with floor(s n + u) copies, each weighted 1/(s n)
