@@ -22,9 +22,11 @@ The lecture's estimator with each degree of freedom of its last slide as a param
 * **Efficiency-aware roulette and splitting** (``rr=adaptive``, EARS: Rath et al. 2022): at
   every vertex a factor n(x) in [``rr_min``, ``split_max``], learned per region from the earlier
   passes of the same render, decides how many copies continue the path (n < 1: roulette with
-  survival n; n > 1: floor(n) or ceil(n) copies, each weighted 1/n).  Split paths become new
-  lanes of a wavefront (:mod:`integrators.sampling.splitting`), at most ``max_lanes`` alive at
-  once; ``render`` is then this integrator's own (JIT variants only), the learned state is kept
+  survival n; n > 1: floor(n) or ceil(n) copies, each weighted 1/n).  By default
+  (``split_policy=never``) n is clamped to one, roulette only, every path in one kernel; with
+  ``always`` (or ``measured``, chosen per render) the first ``split_depth`` vertices split and
+  split paths become new lanes of a wavefront (:mod:`integrators.sampling.splitting`), at most
+  ``max_lanes`` alive at once.  ``render`` is then this integrator's own (JIT variants only), the learned state is kept
   per scene across passes, and ``stats`` counts the rays it traced.  ``split`` must be 1 then.
 
 With ``heuristic=power, light_selection=uniform, rr=throughput, light_samples=1, split=1`` this is

@@ -38,7 +38,9 @@ L_r^2, the cost of a copy and the count of copies, from the copies made in the f
 ``LEARN_DEPTH`` bounces.  Every such copy has a *record*; each lane keeps, per record of its
 ancestors, what it has added since that record was made (registers, no memory traffic per
 bounce), and hands it to the records when it ends or splits (the copies start from zero), so
-when a batch is finished each record holds its copy's beta_copy L_r and cost.  Per pixel: the
+when a batch is finished each record holds its copy's beta_copy L_r and cost.  In the
+one-kernel passes (below) the records are registers of the lane itself
+(:func:`records_start`, :func:`records_add`), scattered to the grids when the path ends.  Per pixel: the
 running mean of the pixel estimate (I_p; a filtered value would spread a light's value over its
 neighbours, whose variance then looks small) and, from the last pass, its second moment and
 cost.  Between passes (:meth:`EARS.learn`) each region gets its two factors sqrt(M C / (V c))
@@ -50,6 +52,24 @@ Mitsuba's ``path`` does: applied before the sample, the rule lags one bounce beh
 a fifth more rays (4.5 against 5.5 continuations per camera sample in the indirect room).  The
 learned state lives on the integrator per scene, across the
 passes of ``render --spp`` or ``--time``.
+
+**Modes and the policy.**  A pass runs in one of ``MODES``: ``classic`` while nothing is
+learned (the throughput rule, records kept), ``roulette`` (the learned n clamped to one:
+survival n where n < 1, no copies) and ``split`` (the learned n, splitting by path replication
+at the first ``split_depth`` vertices).  The first two run every path of a batch in one kernel
+(:meth:`Wavefront.roulette_kernel`, Mitsuba's megakernel: the light samples' BSDF sample is
+reused for the continuation, rays are counted per lane).  ``split_policy`` (``POLICIES``)
+chooses: ``never`` (roulette only; the default), ``always``, or ``measured`` (after the classic
+pass one roulette and one split pass, then the mode of higher measured efficiency, 1 / (the
+pass's relative variance against the current pixel means x its seconds per camera sample, less
+Dr.Jit's compilation: :func:`pass_clock`), renewed by every pass it runs).  Measured (96 px,
+128 spp in doubling passes, 3 repeats, efficiency relative to ``nee_path rr=throughput``;
+indirect room, dark scene with a bright light, glossy scene, heavy mesh): roulette only
+1.23/1.78/0.97/1.27, splitting the first hit 1.05/1.68/0.89/1.25, measured 0.76/1.59/0.89/1.19
+(when ``classic`` still competed, one early pass's heavy-tailed variance made it the choice in
+the indirect room; it now runs only while nothing is learned).  Splitting lowers the error at
+equal samples (relMSE 0.015 against roulette's 0.031 and the baseline's 0.056 in the indirect
+room) but costs more than it saves on the CPU backend.
 
 **Path replication (the wavefront).**  Camera samples are processed in batches.  Per bounce one
 kernel runs over the live lanes (:meth:`Wavefront.continuation`): the BSDF sample, its ray, the
@@ -65,9 +85,10 @@ left, its camera samples are splatted into the film (Mitsuba's ``ImageBlock``, w
 reconstruction filter).  With every lane of the same policy (the throughput rule), a bounce of
 the wavefront costs about 1.8x a bounce of Mitsuba's megakernel in wall time (the state
 written and gathered, the compaction's kernels, host synchronisations), a loop in one kernel
-1.3-1.5x, so only the first vertices of a path, where splitting pays, are replicated: after
-``LEARN_DEPTH`` + 1 of them the lanes finish in one kernel, a loop over the bounces with
-roulette only (:meth:`Wavefront.tail`; n clamped to 1).  Splitting deeper was measured not to
+1.3-1.5x, so only the first ``split_depth`` vertices of a path are replicated (one by default: the first
+hit, where splitting pays most); the lanes then finish in one kernel, a loop over the bounces
+with roulette only (:meth:`Wavefront.tail`; n clamped to 1; copies of a split vertex draw
+their own BSDF sample, then reuse the one drawn with the light samples).  Splitting deeper was measured not to
 pay (indirect room and glossy scene, 128 spp, efficiency relative to the baseline: 0.70x and
 0.56x with splits up to the fourth vertex and records at three, 0.90x / 0.67x as now; glossy
 scene with the batches sized as below, records at 1 / 2 / 3 bounces: 0.58x / 0.80x / 0.67x).
@@ -89,14 +110,16 @@ the camera samples, so comparisons can be made per ray as well as per second; an
 whose factors the lane cap scaled (``capped_bounces``).
 
 **Limits.**  JIT variants only (the wavefront is Dr.Jit arrays; ``nee_path`` refuses
-``rr=adaptive`` in scalar variants in one line).  Per unit of work (rays, a shadow ray counting
-half) a pass costs about 1.7x Mitsuba's megakernel on the LLVM backend (glossy scene, learned
-policy, learning frozen: 2.1 s against nee_path's 0.45 s for 2.9x its rays): the replicated
-bounces (state written and gathered, compaction, host synchronisations) and a tail loop whose
+``rr=adaptive`` in scalar variants in one line).  The learned roulette pass costs 1.3-1.4x
+``nee_path``'s time in the indirect room for 1.1x its rays (the classic mode in the same kernel:
+1.0-1.07x at equal rays): the records (about a tenth), the learned factors' lookups and paths
+of more varied length idling SIMD lanes.  Per unit of work (rays, a shadow ray counting
+half) a split pass with three replicated bounces cost about 1.7x Mitsuba's megakernel on the
+LLVM backend (glossy scene, learned policy, learning frozen: 2.1 s against nee_path's 0.45 s
+for 2.9x its rays): the replicated bounces (state written and gathered, compaction, host synchronisations) and a tail loop whose
 SIMD packets idle while their last lanes finish.  Measured and not kept: compacting the tail
 every 4 bounces (kernel time 0.72x, but the extra launches and traces ate it: 0.99x overall);
-reusing the light samples' BSDF sample for the continuation (no faster: its state costs what the
-call saves); each region's splitting variance from the spread of split copies instead of the
+each region's splitting variance from the spread of split copies instead of the
 spread of all its records (0.85 of it in the glossy scene: no change in efficiency).  In the
 cost model's units the learned policy is 1.26x ``nee_path``'s efficiency in the glossy scene,
 no better than splitting 4 ways at the first hit; the efficiency figures in
