@@ -34,6 +34,7 @@ the estimator of Mitsuba's built-in ``path`` (tested statistically on the Cornel
 """
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 
 import drjit as dr
@@ -129,7 +130,9 @@ class NEEPath(IntegratorTemplate):
             self.ears.mode = self.ears.next_mode()
         wave = splitting.Wavefront(self, self.ears, self.max_lanes)
         mode = self.ears.mode
-        with splitting.pass_clock() as seconds:
+        # (the pass's time: only the measured policy uses it)
+        timed = self.split_policy == "measured"
+        with splitting.pass_clock() if timed else contextlib.nullcontext([0.0]) as seconds:
             block = wave.render(scene, sensor, int(seed), spp)
         if self.ears.learning:
             self.ears.learn(spp, seconds[0])
