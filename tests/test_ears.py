@@ -23,6 +23,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import drjit as dr
 import mitsuba as mi
 import numpy as np
 import pytest
@@ -312,3 +313,20 @@ def test_other_variants(variant):
     else:
         a, b = map(float, out.split()[1:])
         assert np.isfinite(a) and abs(a / b - 1) < 0.03, out
+
+
+def test_pass_clock_leaves_the_kernel_history_alone():
+    """The measured policy's clock turns Dr.Jit's kernel history on only for its block (to
+    subtract compilation) and leaves a caller's own history, and the flag, as they were."""
+    before = dr.flag(dr.JitFlag.KernelHistory)
+    with splitting.pass_clock() as seconds:
+        dr.eval(dr.arange(mi.Float, 1000) * 2.0)
+    assert seconds[0] >= 0.0 and dr.flag(dr.JitFlag.KernelHistory) == before
+    dr.set_flag(dr.JitFlag.KernelHistory, True)
+    try:
+        dr.kernel_history()
+        with splitting.pass_clock() as seconds:
+            dr.eval(dr.arange(mi.Float, 1000) * 3.0)
+        assert seconds[0] >= 0.0 and len(dr.kernel_history()) > 0
+    finally:
+        dr.set_flag(dr.JitFlag.KernelHistory, before)
