@@ -278,13 +278,14 @@ class EARS:
             n = dr.clip(self.forced(sampler, active), self.rr_min, self.split_max)
         else:
             f_m = self.grid.lookup(cell[0], active)
-            f_v = dr.gather(mi.Float, self.f_var, cell[0], active)
             fine = f_m >= 0
-            f_m = dr.select(fine, f_m, self.coarse.lookup(cell[1], active))
-            f_v = dr.select(fine, f_v, dr.gather(mi.Float, self.f_var_coarse, cell[1], active))
+            f_m = dr.select(fine, f_m, self.coarse.lookup(cell[1], active & lnot(fine)))
             w = luminance(beta) * dr.gather(mi.Float, self.inv_pixel, pixel, active)
-            n_m = w * f_m
-            n = dr.select(n_m < 1.0, n_m, dr.maximum(w * f_v, 1.0))
+            n = w * f_m
+            if self.mode == "split":    # (roulette passes clamp n to one: no splitting factor)
+                f_v = dr.select(fine, dr.gather(mi.Float, self.f_var, cell[0], active & fine),
+                                dr.gather(mi.Float, self.f_var_coarse, cell[1], active & lnot(fine)))
+                n = dr.select(n < 1.0, n, dr.maximum(w * f_v, 1.0))
             classic = f_m < 0
             n = dr.select(classic, 1.0, dr.clip(n, self.rr_min, self.split_max))
         beta_nz = dr.any(mi.unpolarized_spectrum(beta) != 0)
