@@ -32,26 +32,26 @@ is large where a vertex carries most of its pixel's variance (the first hit of a
 indirectly): ``split_max`` bounds it there (4 by default).
 
 **What is learned, and where.**  Per region of two
-:class:`~integrators.sampling.learning.RegionGrid` (position and normal octant, a fine one and
-a coarse one used where the fine cell has fewer than ``MIN_VISITS`` copies): sums of L_r,
-L_r^2, the cost of a copy and the count of copies, from the copies made in the first
-``LEARN_DEPTH`` bounces.  Every such copy has a *record*; each lane keeps, per record of its
-ancestors, what it has added since that record was made (registers, no memory traffic per
-bounce), and hands it to the records when it ends or splits (the copies start from zero), so
-when a batch is finished each record holds its copy's beta_copy L_r and cost.  In the
-one-kernel passes (below) the records are registers of the lane itself
-(:func:`records_start`, :func:`records_add`), scattered to the grids when the path ends.  Per pixel: the
-running mean of the pixel estimate (I_p; a filtered value would spread a light's value over its
-neighbours, whose variance then looks small) and, from the last pass, its second moment and
-cost.  Between passes (:meth:`EARS.learn`) each region gets its two factors sqrt(M C / (V c))
-and sqrt(Var C / (V c)); statistics then decay by ``DECAY`` so that what is learned follows
-the changing policy.  Until a region (or its coarse cell) is learned, and in the first pass, a
-vertex has n = 1 and its copy applies the classic throughput rule after its BSDF sample (from
-``rr_depth`` on, survival min(max(beta) eta^2, 0.95) with the sample's weight in beta), as
-Mitsuba's ``path`` does: applied before the sample, the rule lags one bounce behind and traces
-a fifth more rays (4.5 against 5.5 continuations per camera sample in the indirect room).  The
-learned state lives on the integrator per scene, across the
-passes of ``render --spp`` or ``--time``.
+:class:`~integrators.sampling.learning.RegionGrid` (position and normal octant, a fine one and a
+coarse one: the roulette factor is the larger of the two cells', the coarse one's alone where
+the fine cell has fewer than ``MIN_VISITS`` copies): sums of L_r, L_r^2, the cost of a copy and
+the count of copies, from the copies made in the first ``LEARN_DEPTH`` bounces.  Every such copy
+has a *record*; each lane keeps, per record of its ancestors, what it has added since that
+record was made (registers, no memory traffic per bounce), and hands it to the records when it
+ends or splits (the copies start from zero), so when a batch is finished each record holds its
+copy's beta_copy L_r and cost.  In the one-kernel passes (below) the records are registers of
+the lane itself (:func:`records_start`, :func:`records_add`), scattered to the grids when the
+path ends.  Per pixel: the running mean of the pixel estimate (I_p; a filtered value would
+spread a light's value over its neighbours, whose variance then looks small) and, from the last
+pass, its second moment and cost.  Between passes (:meth:`EARS.learn`) each region gets its two
+factors sqrt(M C / (V c)) and sqrt(Var C / (V c)); statistics then decay by ``DECAY`` so that
+what is learned follows the changing policy.  Until a region (or its coarse cell) is learned,
+and in the first pass, a vertex has n = 1 and its copy applies the classic throughput rule after
+its BSDF sample (from ``rr_depth`` on, survival min(max(beta) eta^2, 0.95) with the sample's
+weight in beta), as Mitsuba's ``path`` does: applied before the sample, the rule lags one bounce
+behind and traces a fifth more rays (4.5 against 5.5 continuations per camera sample in the
+indirect room).  The learned state lives on the integrator per scene, across the passes of
+``render --spp`` or ``--time``.
 
 **Modes and the policy.**  A pass runs in one of ``MODES``: ``classic`` while nothing is
 learned (the throughput rule, records kept), ``roulette`` (the learned n clamped to one:
@@ -76,19 +76,19 @@ kernel runs over the live lanes (:meth:`Wavefront.continuation`): the BSDF sampl
 MIS-weighted emission it finds (:meth:`VertexEstimator.emission`), the light samples at the new
 vertex, all added to the lane's own sums (they go to its camera sample, one
 ``dr.scatter_reduce``, when the lane ends or splits), then n at the new vertex and u for its
-rounding.  Then the next wavefront is built (:meth:`Wavefront.replicate`):
-lanes with zero copies are dropped (``dr.compress``), lanes with k copies appear k times (an
-exclusive prefix sum of the counts gives each parent's first slot; a scatter of marks and an
-inclusive prefix sum give every slot its parent), and the state is gathered (inside the next
-bounce's kernel).  Each lane carries its camera sample's index; when a batch has no live lane
-left, its camera samples are splatted into the film (Mitsuba's ``ImageBlock``, with the film's
-reconstruction filter).  With every lane of the same policy (the throughput rule), a bounce of
-the wavefront costs about 1.8x a bounce of Mitsuba's megakernel in wall time (the state
-written and gathered, the compaction's kernels, host synchronisations), a loop in one kernel
-1.3-1.5x, so only the first ``split_depth`` vertices of a path are replicated (one by default: the first
-hit, where splitting pays most); the lanes then finish in one kernel, a loop over the bounces
-with roulette only (:meth:`Wavefront.tail`; n clamped to 1; copies of a split vertex draw
-their own BSDF sample, then reuse the one drawn with the light samples).  Splitting deeper was measured not to
+rounding.  Then the next wavefront is built (:meth:`Wavefront.replicate`): lanes with zero
+copies are dropped (``dr.compress``), lanes with k copies appear k times (an exclusive prefix
+sum of the counts gives each parent's first slot; a scatter of marks and an inclusive prefix sum
+give every slot its parent), and the state is gathered (inside the next bounce's kernel).  Each
+lane carries its camera sample's index; when a batch has no live lane left, its camera samples
+are splatted into the film (Mitsuba's ``ImageBlock``, with the film's reconstruction filter).
+With every lane of the same policy (the throughput rule), a bounce of the wavefront costs about
+1.8x a bounce of Mitsuba's megakernel in wall time (the state written and gathered, the
+compaction's kernels, host synchronisations), a loop in one kernel 1.3-1.5x, so only the first
+``split_depth`` vertices of a path are replicated (one by default: the first hit, where
+splitting pays most); the lanes then finish in one kernel, a loop over the bounces with roulette
+only (:meth:`Wavefront.tail`; n clamped to 1; copies of a split vertex draw their own BSDF
+sample, then reuse the one drawn with the light samples).  Splitting deeper was measured not to
 pay (indirect room and glossy scene, 128 spp, efficiency relative to the baseline: 0.70x and
 0.56x with splits up to the fourth vertex and records at three, 0.90x / 0.67x as now; glossy
 scene with the batches sized as below, records at 1 / 2 / 3 bounces: 0.58x / 0.80x / 0.67x).
@@ -113,29 +113,30 @@ whose factors the lane cap scaled (``capped_bounces``).
 ``rr=adaptive`` in scalar variants in one line).  Vertices without a smooth lobe (glass,
 mirrors, null boundaries) keep the throughput rule: their continuation is fixed by the incoming
 direction, which a region's statistics pool over (learned roulette there: ``specular_box`` at
-0.17x ``nee_path``'s efficiency, now 0.39x).  Light that arrives only through glass (a lamp in a
-glass shade: next-event estimation blocked, every contribution a rare BSDF-sampled path) is
-heavy-tailed at the diffuse vertices before it; their second moments, estimated from few such
-paths, read low, the roulette is too aggressive, and ``rr=adaptive`` is 0.38x ``nee_path`` on
-``glass_shade`` (per-pixel relative variance 2.7x at equal time; 32 px, 256-spp batches after 8
-learning ones; ``ajar_door`` 0.68x, ``caustic`` 1.02x).  There, keep ``rr=throughput``.  The learned roulette pass costs 1.3-1.4x
-``nee_path``'s time in the indirect room for 1.1x its rays (the classic mode in the same kernel:
-1.0-1.07x at equal rays): the records (about a tenth) and, most of it, paths of more varied
-length idling SIMD lanes: learned roulette keeps survival 1 wherever n >= 1 (the throughput
-rule caps it at 0.95), so a packet of 16 lanes runs as long as its longest path: 10.96 bounces
-on average against 8.45 for the classic rule (1.30x, the kernel's 1.31x) for paths of 4.92
-against 4.46 bounces (lanes busy 45 % against 53 % of the iterations; frozen table, 64 spp).  Per unit of work (rays, a shadow ray counting
-half) a split pass with three replicated bounces cost about 1.7x Mitsuba's megakernel on the
-LLVM backend (glossy scene, learned policy, learning frozen: 2.1 s against nee_path's 0.45 s
-for 2.9x its rays): the replicated bounces (state written and gathered, compaction, host synchronisations) and a tail loop whose
-SIMD packets idle while their last lanes finish.  Measured and not kept: compacting the tail
-every 4 bounces (kernel time 0.72x, but the extra launches and traces ate it: 0.99x overall);
-each region's splitting variance from the spread of split copies instead of the
-spread of all its records (0.85 of it in the glossy scene: no change in efficiency).  In the
-cost model's units the learned policy is 1.26x ``nee_path``'s efficiency in the glossy scene,
-no better than splitting 4 ways at the first hit; the efficiency figures in
-``benchmarks/results/ears`` include all of it.
-"""
+0.17x ``nee_path``'s efficiency, 0.39x without it).  Light that arrives only through glass (a
+lamp in a glass shade: next-event estimation blocked, every contribution a rare BSDF-sampled
+path) is heavy-tailed at the diffuse vertices before it; their second moments, estimated from
+few such paths, read low, and the roulette is too aggressive: ``rr=adaptive`` was 0.38x
+``nee_path`` on ``glass_shade`` (32 px, 256-spp batches after 8 learning ones; ``ajar_door``
+0.68x, ``caustic`` 1.02x), 0.70x with the roulette factor the larger of the fine and the coarse
+cell's (and ``specular_box`` 0.69x).  There, prefer ``rr=throughput``.  The learned roulette
+pass costs 1.3-1.4x ``nee_path``'s time in the indirect room for 1.1x its rays (the classic mode
+in the same kernel: 1.0-1.07x at equal rays): the records (about a tenth) and, most of it, paths
+of more varied length idling SIMD lanes: learned roulette keeps survival 1 wherever n >= 1 (the
+throughput rule caps it at 0.95), so a packet of 16 lanes runs as long as its longest path:
+10.96 bounces on average against 8.45 for the classic rule (1.30x, the kernel's 1.31x) for paths
+of 4.92 against 4.46 bounces (lanes busy 45 % against 53 % of the iterations; frozen table, 64
+spp).  Per unit of work (rays, a shadow ray counting half) a split pass with three replicated
+bounces cost about 1.7x Mitsuba's megakernel on the LLVM backend (glossy scene, learned policy,
+learning frozen: 2.1 s against nee_path's 0.45 s for 2.9x its rays): the replicated bounces
+(state written and gathered, compaction, host synchronisations) and a tail loop whose SIMD
+packets idle while their last lanes finish.  Measured and not kept: compacting the tail every 4
+bounces (kernel time 0.72x, but the extra launches and traces ate it: 0.99x overall); each
+region's splitting variance from the spread of split copies instead of the spread of all its
+records (0.85 of it in the glossy scene: no change in efficiency).  In the cost model's units
+the learned policy is 1.26x ``nee_path``'s efficiency in the glossy scene, no better than
+splitting 4 ways at the first hit; the efficiency figures in ``benchmarks/results/ears`` include
+all of it."""
 from __future__ import annotations
 
 import contextlib
@@ -233,8 +234,9 @@ class EARS:
 
     def __init__(self, scene, rr_min: float, split_max: int, rr_depth: int,
                  split_depth: int = 1, policy: str = "never"):
-        # a fine and a coarse grid (the fine cell's factors where it has enough copies, else
-        # the coarse cell's): statistics: sum L_r^2, sum L_r, copies, sum cost
+        # a fine and a coarse grid (roulette: the larger factor of the two cells; splitting: the
+        # fine cell's where it has enough copies, else the coarse one's); statistics: sum L_r^2,
+        # sum L_r, copies, sum cost
         self.grid = RegionGrid(scene, stats=4, resolution=FINE)
         self.coarse = RegionGrid(scene, stats=4, resolution=COARSE, size=1 << 12)
         self.rr_min, self.split_max, self.rr_depth = float(rr_min), int(split_max), int(rr_depth)
@@ -290,12 +292,19 @@ class EARS:
         else:
             f_m = self.grid.lookup(cell[0], active)
             fine = f_m >= 0
-            f_m = dr.select(fine, f_m, self.coarse.lookup(cell[1], active & lnot(fine)))
+            # the larger of the fine and the coarse cell's roulette factor (the coarse one alone
+            # where the fine cell has nothing learned): a second moment estimated from few
+            # heavy-tailed samples reads low, and the coarse cell, pooling more paths, is likelier
+            # to hold the rare large ones (light through glass: glass_shade 0.38x -> 0.70x
+            # nee_path's efficiency, specular_box 0.39x -> 0.69x; the four benchmark scenes
+            # 1.30/0.68/1.02/1.29x -> 1.37/0.69/1.05/1.33x in one A/B run)
+            f_m = dr.maximum(f_m, self.coarse.lookup(cell[1], active))
             w = luminance(beta) * dr.gather(mi.Float, self.inv_pixel, pixel, active)
             n = w * f_m
             if self.mode == "split":    # (roulette passes clamp n to one: no splitting factor)
+                coarse = dr.gather(mi.Float, self.f_var_coarse, cell[1], active & lnot(fine))
                 f_v = dr.select(fine, dr.gather(mi.Float, self.f_var, cell[0], active & fine),
-                                dr.gather(mi.Float, self.f_var_coarse, cell[1], active & lnot(fine)))
+                                coarse)
                 n = dr.select(n < 1.0, n, dr.maximum(w * f_v, 1.0))
             # a vertex without a smooth lobe (glass, mirror, null) continues in the one direction
             # its incoming ray dictates: a region's statistics, pooled over every incoming
