@@ -33,7 +33,6 @@ import pytest
 
 import integrators  # noqa: F401
 from integrators.sampling import splitting
-from integrators import testing
 from integrators.testing import assert_unbiased, check_unbiased, closed_box
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -227,6 +226,8 @@ def test_memory_flat_in_spp_with_maximal_splitting():
     ({"split_max": 0}, "parameter 'split_max' = 0 is invalid; allowed: an integer >= 1"),
     ({"rr_min": 2.0}, "parameter 'rr_min' = 2.0 is invalid; allowed: a number >= 0.001"),
     ({"max_lanes": 10}, "parameter 'max_lanes' = 10 is invalid"),
+    ({"split_depth": 0}, "parameter 'split_depth' = 0 is invalid; allowed: an integer >= 1"),
+    ({"split_policy": "sometimes"}, "parameter 'split_policy' = 'sometimes' is invalid"),
     ({"split": 4}, "parameter 'split' = 4 is invalid with rr=adaptive; allowed: 1")])
 def test_bad_parameters_one_line(kw, needle):
     # Mitsuba wraps a plugin's exception; the plugin's own message is one line
@@ -334,17 +335,6 @@ def test_pass_clock_leaves_the_kernel_history_alone():
         assert seconds[0] >= 0.0 and len(dr.kernel_history()) > 0
     finally:
         dr.set_flag(dr.JitFlag.KernelHistory, before)
-
-
-@pytest.fixture(scope="module")
-def specular_box():
-    return mi.load_file(str(ROOT / "scenes" / "specular_box.xml"), res="24")
-
-
-@pytest.fixture(scope="module")
-def specular_box_path(specular_box):
-    return testing.batch_images(specular_box, mi.load_dict({"type": "path", "max_depth": 6}),
-                                batches=16, spp=1024, seed0=777)
 
 
 @pytest.mark.parametrize("how", [pytest.param("learned", marks=pytest.mark.slow),

@@ -13,8 +13,6 @@ mirrors and null boundaries; delta lobes skip the technique choice.
 """
 from __future__ import annotations
 
-from pathlib import Path
-
 import mitsuba as mi
 import numpy as np
 import pytest
@@ -25,7 +23,6 @@ from integrators.testing import assert_unbiased
 from integrators.testing.closed_forms import closed_box_radiance
 from integrators.testing.scenes import closed_box_scene
 
-ROOT = Path(__file__).resolve().parents[1]
 RNG = np.random.default_rng(20261201)
 RANDOM_P = [tuple(float(x) for x in RNG.dirichlet((1, 1, 1))) for _ in range(3)]
 P_VECTORS = RANDOM_P + [(0.0, 0.0, 1.0), (0.5, 0.5, 0.0)]
@@ -39,17 +36,6 @@ def test_closed_box_random_p_vectors(p, max_depth):
     assert_unbiased(closed_box_scene(0.5, 1.0),
                     expected, {"type": "mis3", "p_cosine": p[0], "p_glossy": p[1],
                                "p_light": p[2], "max_depth": max_depth}, **CLOSED)
-
-
-@pytest.fixture(scope="module")
-def specular_box():
-    return mi.load_file(str(ROOT / "scenes" / "specular_box.xml"), res="24")
-
-
-@pytest.fixture(scope="module")
-def specular_box_path(specular_box):
-    return testing.batch_images(specular_box, mi.load_dict({"type": "path", "max_depth": 6}),
-                                batches=16, spp=1024, seed0=777)
 
 
 @pytest.mark.parametrize("integ", [{"type": "mis3", "selection": "fixed"},
