@@ -33,25 +33,38 @@ indirectly): ``split_max`` bounds it there (4 by default).
 
 **What is learned, and where.**  Per region of two
 :class:`~integrators.sampling.learning.RegionGrid` (position and normal octant, a fine one and a
-coarse one: the roulette factor is the larger of the two cells', the coarse one's alone where
-the fine cell has fewer than ``MIN_VISITS`` copies): sums of L_r, L_r^2, the cost of a copy and
-the count of copies, from the copies made in the first ``LEARN_DEPTH`` bounces.  Every such copy
-has a *record*; each lane keeps, per record of its ancestors, what it has added since that
-record was made (registers, no memory traffic per bounce), and hands it to the records when it
-ends or splits (the copies start from zero), so when a batch is finished each record holds its
-copy's beta_copy L_r and cost.  In the one-kernel passes (below) the records are registers of
-the lane itself (:func:`records_start`, :func:`records_add`), scattered to the grids when the
-path ends.  Per pixel: the running mean of the pixel estimate (I_p; a filtered value would
-spread a light's value over its neighbours, whose variance then looks small) and, from the last
-pass, its second moment and cost.  Between passes (:meth:`EARS.learn`) each region gets its two
-factors sqrt(M C / (V c)) and sqrt(Var C / (V c)); statistics then decay by ``DECAY`` so that
-what is learned follows the changing policy.  Until a region (or its coarse cell) is learned,
-and in the first pass, a vertex has n = 1 and its copy applies the classic throughput rule after
-its BSDF sample (from ``rr_depth`` on, survival min(max(beta) eta^2, 0.95) with the sample's
-weight in beta), as Mitsuba's ``path`` does: applied before the sample, the rule lags one bounce
-behind and traces a fifth more rays (4.5 against 5.5 continuations per camera sample in the
-indirect room).  The learned state lives on the integrator per scene, across the passes of
-``render --spp`` or ``--time``.
+coarse one, the coarse one's factors used where the fine cell has no copies): sums of L_r,
+L_r^2, the cost of a copy and the count of copies, from the copies made in the first
+``LEARN_DEPTH`` bounces.  A cell's moments are shrunk towards its parent's (a coarse cell's
+towards the whole scene's, a fine cell's towards its coarse cell's) with the weight of
+``PRIOR_VISITS`` copies, (sum + PRIOR_VISITS x parent) / (count + PRIOR_VISITS)
+(:meth:`EARS.moments`): where the light a vertex reflects comes from rare paths (light through
+glass: next-event estimation blocked, every contribution a rare BSDF-sampled path), a cell that
+has seen none of them reads a second moment of zero, and its factor would be ``rr_min`` at every
+vertex, roulette compounding to weights of 10^k; shrunk, it keeps the part of the scene's second
+moment its few copies cannot rule out, and a cell of many copies its own.  Every such copy has a
+*record*; each lane keeps, per record of its ancestors, what it has added since that record was
+made (registers, no memory traffic per bounce), and hands it to the records when it ends or
+splits (the copies start from zero), so when a batch is finished each record holds its copy's
+beta_copy L_r and cost.  In the one-kernel passes (below) the records are registers of the lane
+itself (:func:`records_start`, :func:`records_add`), scattered to the grids when the path ends.
+Per pixel: the running mean of the pixel estimate (I_p; a filtered value would spread a light's
+value over its neighbours, whose variance then looks small) and, from the last pass, its second
+moment and cost.  Between passes (:meth:`EARS.learn`) each region gets its two factors sqrt(M C
+/ (V c)) and sqrt(Var C / (V c)); statistics then decay by ``DECAY`` so that what is learned
+follows the changing policy.  Until the scene has ``MIN_VISITS`` copies, and in the first pass,
+a vertex has n = 1 and its copy applies the classic throughput rule after its BSDF sample (from
+``rr_depth`` on, survival min(max(beta) eta^2, 0.95) with the sample's weight in beta), as
+Mitsuba's ``path`` does: applied before the sample, the rule lags one bounce behind and traces a
+fifth more rays (4.5 against 5.5 continuations per camera sample in the indirect room).  The
+learned state lives on the integrator per scene, across the passes of ``render --spp`` or
+``--time``.  The shrinkage replaced two earlier guards against second moments read low: the
+larger of the fine and the coarse cell's roulette factor, and a ``MIN_VISITS`` per cell (below
+it the throughput rule).  With them, ``glass_shade`` at 96 px was 0.12/0.14/0.71x ``nee_path``'s
+efficiency at 32/128/512 spp (relMSE 10-22 against 2.0 at 32 spp: the young table's roulette at
+``rr_min``) and the indirect room 1.01/1.24/1.28x; with the shrinkage (and :meth:`EARS.learn` on
+the cells with copies only, 1.5-3 ms a pass instead of 5) 0.72/0.71/0.76x and 1.28/1.30/1.34x
+(``benchmarks.ears``, 4 repeats, the same seeds).
 
 **Modes and the policy.**  A pass runs in one of ``MODES``: ``classic`` while nothing is
 learned (the throughput rule, records kept), ``roulette`` (the learned n clamped to one:
@@ -115,28 +128,38 @@ mirrors, null boundaries) keep the throughput rule: their continuation is fixed 
 direction, which a region's statistics pool over (learned roulette there: ``specular_box`` at
 0.17x ``nee_path``'s efficiency, 0.39x without it).  Light that arrives only through glass (a
 lamp in a glass shade: next-event estimation blocked, every contribution a rare BSDF-sampled
-path) is heavy-tailed at the diffuse vertices before it; their second moments, estimated from
-few such paths, read low, and the roulette is too aggressive: ``rr=adaptive`` was 0.38x
-``nee_path`` on ``glass_shade`` (32 px, 256-spp batches after 8 learning ones; ``ajar_door``
-0.68x, ``caustic`` 1.02x), 0.70x with the roulette factor the larger of the fine and the coarse
-cell's (and ``specular_box`` 0.69x).  There, prefer ``rr=throughput``.  The learned roulette
-pass costs 1.3-1.4x ``nee_path``'s time in the indirect room for 1.1x its rays (the classic mode
-in the same kernel: 1.0-1.07x at equal rays): the records (about a tenth) and, most of it, paths
-of more varied length idling SIMD lanes: learned roulette keeps survival 1 wherever n >= 1 (the
-throughput rule caps it at 0.95), so a packet of 16 lanes runs as long as its longest path:
-10.96 bounces on average against 8.45 for the classic rule (1.30x, the kernel's 1.31x) for paths
-of 4.92 against 4.46 bounces (lanes busy 45 % against 53 % of the iterations; frozen table, 64
-spp).  Per unit of work (rays, a shadow ray counting half) a split pass with three replicated
-bounces cost about 1.7x Mitsuba's megakernel on the LLVM backend (glossy scene, learned policy,
-learning frozen: 2.1 s against nee_path's 0.45 s for 2.9x its rays): the replicated bounces
-(state written and gathered, compaction, host synchronisations) and a tail loop whose SIMD
-packets idle while their last lanes finish.  Measured and not kept: compacting the tail every 4
-bounces (kernel time 0.72x, but the extra launches and traces ate it: 0.99x overall); each
-region's splitting variance from the spread of split copies instead of the spread of all its
-records (0.85 of it in the glossy scene: no change in efficiency).  In the cost model's units
-the learned policy is 1.26x ``nee_path``'s efficiency in the glossy scene, no better than
-splitting 4 ways at the first hit; the efficiency figures in ``benchmarks/results/ears`` include
-all of it."""
+path) is heavy-tailed at the diffuse vertices before it.  Once learned (48 px, 256-spp batches
+after 8 learning ones), ``rr=adaptive`` has there the variance of the throughput rule (relative
+variance 0.241 against 0.243) for 1.3x its time: 1.13x the rays (learned survival 1 where the
+throughput rule ends paths from ``rr_depth`` on) and the learned kernel's cost per ray (the
+classic mode in the same kernel, records kept: 1.16x ``nee_path``'s time at equal rays).  No
+constant lifts it without losing elsewhere (swept before the shrinkage: copies per cell 256 /
+2048, ``RR_MARGIN`` 1 / 1.4 / 4, ``DECAY`` 0.8, ``LEARN_DEPTH`` 1 / 3; ``LEARN_DEPTH`` 1 gives
+``glass_shade`` 0.84x and the indirect room 1.01x).  There, prefer ``rr=throughput``.  Tried and
+not kept: path regeneration in the one-kernel pass (a lane whose path ends takes the next camera
+sample from an atomic counter: with learning frozen 0.92x the roulette pass's time, but 1.09x
+the classic pass's; with the records flushed inside the loop, learning: 1.13x in the indirect
+room, 1.26x on the lamp in a glass shade, 0.88x in the glossy scene); falling back on the
+throughput rule when the classic pass measured more efficient than the learned ones (one pass of
+each is too noisy a measure: the ratio ranged 0.82-1.44 over repeats of the lamp in a glass
+shade, and the first pass of a process carries 0.1 s of one-time Python costs).  The learned
+roulette pass costs 1.3-1.4x ``nee_path``'s time in the indirect room for 1.1x its rays (the
+classic mode in the same kernel: 1.0-1.07x at equal rays): the records (about a tenth) and, most
+of it, paths of more varied length idling SIMD lanes: learned roulette keeps survival 1 wherever
+n >= 1 (the throughput rule caps it at 0.95), so a packet of 16 lanes runs as long as its
+longest path: 10.96 bounces on average against 8.45 for the classic rule (1.30x, the kernel's
+1.31x) for paths of 4.92 against 4.46 bounces (lanes busy 45 % against 53 % of the iterations;
+frozen table, 64 spp).  Per unit of work (rays, a shadow ray counting half) a split pass with
+three replicated bounces cost about 1.7x Mitsuba's megakernel on the LLVM backend (glossy scene,
+learned policy, learning frozen: 2.1 s against nee_path's 0.45 s for 2.9x its rays): the
+replicated bounces (state written and gathered, compaction, host synchronisations) and a tail
+loop whose SIMD packets idle while their last lanes finish.  Measured and not kept: compacting
+the tail every 4 bounces (kernel time 0.72x, but the extra launches and traces ate it: 0.99x
+overall); each region's splitting variance from the spread of split copies instead of the spread
+of all its records (0.85 of it in the glossy scene: no change in efficiency).  In the cost
+model's units the learned policy is 1.26x ``nee_path``'s efficiency in the glossy scene, no
+better than splitting 4 ways at the first hit; the efficiency figures in
+``benchmarks/results/ears`` include all of it."""
 from __future__ import annotations
 
 import contextlib
@@ -153,8 +176,12 @@ from .roulette import roulette
 #: bounces whose vertices keep records (statistics of L_r and cost per region); one more
 #: bounce is replicated, the rest runs in the tail kernel
 LEARN_DEPTH = 2
-#: copies a region needs before its learned factors replace the throughput rule
+#: copies the scene needs before learned factors replace the throughput rule
 MIN_VISITS = 32
+#: weight, in copies, of the parent level's moments in a cell's (fine: its coarse cell's;
+#: coarse: the scene's): a cell's second moment estimated from few heavy-tailed copies reads low
+#: (none of the rare large ones seen), and zero where none was seen
+PRIOR_VISITS = 32
 #: resolutions of the fine and the coarse grid (cells along the scene's longest side)
 FINE, COARSE = 32, 8
 #: weight of older statistics after each pass (the policy behind a vertex changes)
@@ -242,6 +269,10 @@ class EARS:
         self.rr_min, self.split_max, self.rr_depth = float(rr_min), int(split_max), int(rr_depth)
         self.f_var = mi.Float(np.full(self.grid.size, -1.0, np.float32))
         self.f_var_coarse = mi.Float(np.full(self.coarse.size, -1.0, np.float32))
+        #: each fine cell's coarse cell (the last record written there): the parent its moments
+        #: are shrunk towards
+        self.parent = dr.zeros(mi.UInt32, self.grid.size)
+        dr.eval(self.parent)    # (a buffer before a kernel scatters into it, as the stats)
         self.shape = None
         self.passes = 0
         #: largest (live lanes + sum of n) per camera sample of a bounce in the last pass
@@ -292,13 +323,9 @@ class EARS:
         else:
             f_m = self.grid.lookup(cell[0], active)
             fine = f_m >= 0
-            # the larger of the fine and the coarse cell's roulette factor (the coarse one alone
-            # where the fine cell has nothing learned): a second moment estimated from few
-            # heavy-tailed samples reads low, and the coarse cell, pooling more paths, is likelier
-            # to hold the rare large ones (light through glass: glass_shade 0.38x -> 0.70x
-            # nee_path's efficiency, specular_box 0.39x -> 0.69x; the four benchmark scenes
-            # 1.30/0.68/1.02/1.29x -> 1.37/0.69/1.05/1.33x in one A/B run)
-            f_m = dr.maximum(f_m, self.coarse.lookup(cell[1], active))
+            # (the coarse cell's where the fine one has no records; the fine cell's moments are
+            # already shrunk towards its coarse cell's, see factors)
+            f_m = dr.select(fine, f_m, self.coarse.lookup(cell[1], active & lnot(fine)))
             w = luminance(beta) * dr.gather(mi.Float, self.inv_pixel, pixel, active)
             n = w * f_m
             if self.mode == "split":    # (roulette passes clamp n to one: no splitting factor)
@@ -344,9 +371,25 @@ class EARS:
         var = np.maximum(s2 / spp - mean ** 2, 0.0) * n_all / (n_all - 1)
         v_rel = float(np.mean(var / ip2))
         k = cost / v_rel if v_rel > 0 else 0.0
+        # the moments shrunk towards the parent level's: coarse cells towards the whole scene's,
+        # fine cells towards their coarse cell's (see factors)
+        # (on the cells with copies only: a few thousand of the fine grid's 65536)
+        st_c = self.coarse.statistics()
+        total = st_c.sum(axis=0)
+        vis_c = np.flatnonzero(st_c[:, 2] > 0)
+        mom_c = np.zeros((st_c.shape[0], 4))
+        mom_c[vis_c] = self.moments(st_c[vis_c], np.broadcast_to(
+            total / total[2], (vis_c.size, 4)) if total[2] > 0 else None)
+        st_f = self.grid.statistics()
+        vis_f = np.flatnonzero(st_f[:, 2] > 0)
+        parent = np.array(self.parent, np.int64)[vis_f]
+        mom_f = self.moments(st_f[vis_f], mom_c[parent] if total[2] > 0 else None)
         ok_any = False
-        for grid, attr in ((self.grid, "f_var"), (self.coarse, "f_var_coarse")):
-            f_m, f_v, ok = self.factors(grid.statistics(), k)
+        for grid, attr, st, vis, mom in ((self.grid, "f_var", st_f, vis_f, mom_f),
+                                         (self.coarse, "f_var_coarse", st_c, vis_c,
+                                          mom_c[vis_c])):
+            f_m, f_v = np.full(grid.size, -1.0), np.full(grid.size, -1.0)
+            f_m[vis], f_v[vis], ok = self.factors(st[vis], mom, k, total[2])
             grid.set_table(f_m)
             setattr(self, attr, mi.Float(f_v.astype(np.float32)))
             grid.stats = grid.stats * DECAY
@@ -387,15 +430,28 @@ class EARS:
         return max(LEARNED_MODES, key=lambda m: self.measured[m])
 
     @staticmethod
-    def factors(st: np.ndarray, k: float):
-        """Per cell sqrt(M k / c) and sqrt(Var k / c) (-1 where the cell has fewer than
-        MIN_VISITS copies), k = C / V; and where they are defined."""
+    def moments(st: np.ndarray, prior):
+        """Per cell (E[L_r^2], E[L_r], copies, cost per copy), each moment shrunk towards the
+        ``prior``'s (an array of the same rows, or None) with the weight of ``PRIOR_VISITS``
+        copies: (sum + PRIOR_VISITS prior) / (count + PRIOR_VISITS)."""
         cnt = st[:, 2]
-        ok = (cnt >= MIN_VISITS) & (k > 0)
-        inv = 1.0 / np.maximum(cnt, 1e-30)
-        c = np.maximum(np.where(ok, st[:, 3] * inv, 1.0), 1e-6)
-        m2 = np.where(ok, st[:, 0] * inv, 0.0)
-        mu = np.where(ok, st[:, 1] * inv, 0.0)
+        sums = st[:, (0, 1, 3)]
+        if prior is None:
+            return np.column_stack([(sums / np.maximum(cnt, 1e-30)[:, None])[:, :2], cnt,
+                                    sums[:, 2] / np.maximum(cnt, 1e-30)])
+        pri = np.asarray(prior)[:, (0, 1, 3)]
+        est = (sums + PRIOR_VISITS * pri) / (cnt + PRIOR_VISITS)[:, None]
+        return np.column_stack([est[:, :2], cnt, est[:, 2]])
+
+    @staticmethod
+    def factors(st: np.ndarray, mom: np.ndarray, k: float, total: float):
+        """Per cell sqrt(M k / c) and sqrt(Var k / c) from its shrunk moments ``mom``
+        (:meth:`moments`; -1 where the cell has no copies, or the scene fewer than
+        MIN_VISITS), k = C / V; and where they are defined."""
+        ok = (st[:, 2] > 0) & (total >= MIN_VISITS) & (k > 0)
+        c = np.maximum(np.where(ok, mom[:, 3], 1.0), 1e-6)
+        m2 = np.where(ok, mom[:, 0], 0.0)
+        mu = np.where(ok, mom[:, 1], 0.0)
         v = np.maximum(m2 - mu ** 2, 0.0)
         f_m = np.where(ok, RR_MARGIN * np.sqrt(m2 * k / c), -1.0)
         f_v = np.where(ok, np.sqrt(v * k / c), -1.0)
@@ -429,12 +485,17 @@ def records_start(recs, depth, cell, blum, first=0):
 
 
 def records_flush(ears, recs):
-    """The records' L_r = S / beta, its square, the count and the cost to both grids."""
+    """The records' L_r = S / beta, its square, the count and the cost to both grids (and the
+    fine cell's coarse cell)."""
     for a, b, bl, S, R in recs:
         L_r = safe_div(S, bl)
         vals = [L_r * L_r, L_r, mi.Float(1.0), R]
         ears.grid.add(a, vals, bl > 0, mode=DIRECT)
         ears.coarse.add(b, vals, bl > 0, mode=DIRECT)
+        # (an atomic max: commutative, so no scatter has to wait for another, which a plain
+        # scatter into the same array would, splitting the kernel: any coarse cell a fine cell
+        # lies in will do)
+        dr.scatter_reduce(dr.ReduceOp.Max, ears.parent, b, a, bl > 0, mode=DIRECT)
 
 
 def copy_weight(n):
@@ -637,7 +698,7 @@ class Wavefront:
         if learn:
             records_flush(ears, [(*r["cell"], r["blum"], r["S"], r["R"]) for r in recs])
         ears.pass_cost += work + CAMERA_COST * n_cam
-        dr.eval(ears.grid.stats, ears.coarse.stats)
+        dr.eval(ears.grid.stats, ears.coarse.stats, ears.parent)
         return self.L, valid
 
     @record_once
