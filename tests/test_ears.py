@@ -343,9 +343,6 @@ def test_moments_shrunk_towards_the_parent():
     st[0, 2] = 0.0
     assert not splitting.EARS.factors(st, mom, 1.0, splitting.MIN_VISITS)[2][0]
     assert not splitting.EARS.factors(st, mom, 1.0, splitting.MIN_VISITS - 1)[2].any()
-    # without a parent (no copies in the scene): the cell's own means
-    own = splitting.EARS.moments(st[1:], None)
-    assert own[0, 0] == pytest.approx(4.0) and own[0, 3] == pytest.approx(1.0)
 
 
 def test_pass_clock_leaves_the_kernel_history_alone():

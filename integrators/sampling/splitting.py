@@ -379,11 +379,11 @@ class EARS:
         vis_c = np.flatnonzero(st_c[:, 2] > 0)
         mom_c = np.zeros((st_c.shape[0], 4))
         mom_c[vis_c] = self.moments(st_c[vis_c], np.broadcast_to(
-            total / total[2], (vis_c.size, 4)) if total[2] > 0 else None)
+            total / max(total[2], 1e-30), (vis_c.size, 4)))
         st_f = self.grid.statistics()
         vis_f = np.flatnonzero(st_f[:, 2] > 0)
         parent = np.array(self.parent, np.int64)[vis_f]
-        mom_f = self.moments(st_f[vis_f], mom_c[parent] if total[2] > 0 else None)
+        mom_f = self.moments(st_f[vis_f], mom_c[parent])
         ok_any = False
         for grid, attr, st, vis, mom in ((self.grid, "f_var", st_f, vis_f, mom_f),
                                          (self.coarse, "f_var_coarse", st_c, vis_c,
@@ -432,13 +432,10 @@ class EARS:
     @staticmethod
     def moments(st: np.ndarray, prior):
         """Per cell (E[L_r^2], E[L_r], copies, cost per copy), each moment shrunk towards the
-        ``prior``'s (an array of the same rows, or None) with the weight of ``PRIOR_VISITS``
-        copies: (sum + PRIOR_VISITS prior) / (count + PRIOR_VISITS)."""
+        ``prior``'s (rows of the same layout) with the weight of ``PRIOR_VISITS`` copies:
+        (sum + PRIOR_VISITS prior) / (count + PRIOR_VISITS)."""
         cnt = st[:, 2]
         sums = st[:, (0, 1, 3)]
-        if prior is None:
-            return np.column_stack([(sums / np.maximum(cnt, 1e-30)[:, None])[:, :2], cnt,
-                                    sums[:, 2] / np.maximum(cnt, 1e-30)])
         pri = np.asarray(prior)[:, (0, 1, 3)]
         est = (sums + PRIOR_VISITS * pri) / (cnt + PRIOR_VISITS)[:, None]
         return np.column_stack([est[:, :2], cnt, est[:, 2]])
