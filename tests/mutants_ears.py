@@ -39,8 +39,7 @@ MUTANTS = [
     # the one-kernel roulette (classic / roulette passes) without its 1/n, at the first hit
     # and at the later vertices
     ("ears-kernel-first-hit-roulette-uncompensated", _S,
-     "        beta *= copy_weight(q)\n        # record k",
-     "        # record k", _T),
+     "        beta *= w0\n", "", _T),
     ("ears-kernel-roulette-uncompensated", _S,
      "            beta *= copy_weight(q)\n            blum =",
      "            blum =", _T),
@@ -48,6 +47,14 @@ MUTANTS = [
     # would take the zeros the tail starts with, or, had it been kept, their parent's)
     ("ears-tail-copies-share-sample", _S,
      "            if fresh is not None:", "            if False:", _T),
+    # the first hit's copies in the kernel: a copy after the first restarts without the copy
+    # weight 1/n, or without a BSDF sample of its own (it would take the one drawn at the
+    # vertex where the last copy ended)
+    ("ears-kernel-copy-restarts-unweighted", _S,
+     "beta = dr.select(restart, mi.Spectrum(w0), beta)",
+     "beta = dr.select(restart, mi.Spectrum(1.0), beta)", _T),
+    ("ears-kernel-copy-reuses-sample", _S,
+     "            fresh = restart\n", "            fresh = mi.Bool(False)\n", _T),
     # contributions written instead of added: the copies of a camera sample overwrite each
     # other (and the first hit's emission)
     ("ears-contribution-overwrites", _S,

@@ -60,13 +60,25 @@ def test_closed_box_random_factors_every_vertex(max_depth):
                     spp=256)
 
 
-def test_closed_box_random_factors_first_hit_then_tail():
-    """Splitting at the first hit only (the default split_depth): the copies start the tail
-    kernel with a BSDF sample of their own, then continue with the one drawn with each vertex's
-    light samples; max_depth 8, so the tail's roulette (survival min(n, 1)) acts at up to six
-    vertices and carries a sixth of the value."""
-    assert_unbiased(*closed_box(max_depth=8, spp=256), random_ears(max_depth=8, split_depth=1),
-                    spp=256)
+def test_closed_box_random_factors_first_hit_copies_in_the_kernel():
+    """Splitting at the first hit only (the default split_depth): its copies run one after
+    another in the lane of the megakernel, each from the first hit with a BSDF sample of its
+    own; max_depth 8, so the roulette after it (survival min(n, 1)) acts at up to six vertices
+    and carries a sixth of the value."""
+    it = random_ears(max_depth=8, split_depth=1)
+    assert_unbiased(*closed_box(max_depth=8, spp=256), it, spp=256)
+    assert it.stats["mode"] == "split" and it.stats["max_lanes"] == 0   # (no replication)
+
+
+def test_closed_box_random_factors_replicated_then_tail():
+    """Splitting at the first two vertices: replicated lanes, then the tail kernel, whose
+    copies start with a BSDF sample of their own and continue with the one drawn with each
+    vertex's light samples.  Factors in [0.1, 2], so that the tail's roulette (survival
+    min(n, 1), at up to five vertices) acts at half its vertices: it carries an eighth of the
+    value, and a roulette without its 1/n there is a bias of several s.e."""
+    it = random_ears(0.1, 2.0, max_depth=8, split_depth=2)
+    assert_unbiased(*closed_box(max_depth=8, spp=512), it, spp=512)
+    assert it.stats["max_lanes"] > 0
 
 
 def test_closed_box_random_factors_roulette_kernel():
@@ -135,7 +147,8 @@ def test_same_image_as_mitsuba_path_small():
     noise guard is relaxed to 1.5 % (a 15 % error gives |t| >= 10); the 0.5 % check of
     unbiasedness against path is the slow test below and the closed-box tests."""
     scene = mi.load_file(str(ROOT / "scenes" / "cornell_box.xml"), res="8")
-    it = ears(max_depth=8, split_policy="always")     # the first hit split, then the tail
+    # the first two vertices split by replication, then the tail
+    it = ears(max_depth=8, split_policy="always", split_depth=2)
     it.forced_factor = splitting.random_factors(0.3, 3.0)
     assert_unbiased(scene, {"type": "path", "max_depth": 8}, it, spp=256, batches=16,
                     max_rel_se=0.015)

@@ -307,10 +307,11 @@ class EARS:
         self.pass_cost = 0.0
 
     # ---- in the kernel -------------------------------------------------------------------
-    def factor(self, si, beta, eta, depth, pixel, sampler, active):
+    def factor(self, si, beta, eta, depth, pixel, sampler, active, split=None):
         """n(x) at the vertex ``si`` reached with throughput ``beta`` (before clamping to the
         lane cap), whether the vertex falls back on the throughput rule, and its cell.  n is
-        zero where ``active`` is false.  Where nothing is learned n is 1 and the throughput
+        zero where ``active`` is false.  ``split``: whether n may exceed one (default: in
+        ``split`` passes).  Where nothing is learned n is 1 and the throughput
         rule is applied by the copy after its BSDF sample (:meth:`Wavefront.continuation`), as
         Mitsuba's ``path`` does: the sample's own weight then counts in the survival, and no
         more continuations are traced than the classic roulette traces."""
@@ -328,7 +329,8 @@ class EARS:
             f_m = dr.select(fine, f_m, self.coarse.lookup(cell[1], active & lnot(fine)))
             w = luminance(beta) * dr.gather(mi.Float, self.inv_pixel, pixel, active)
             n = w * f_m
-            if self.mode == "split":    # (roulette passes clamp n to one: no splitting factor)
+            if self.mode == "split" if split is None else split:
+                # (roulette passes clamp n to one: no splitting factor)
                 coarse = dr.gather(mi.Float, self.f_var_coarse, cell[1], active & lnot(fine))
                 f_v = dr.select(fine, dr.gather(mi.Float, self.f_var, cell[0], active & fine),
                                 coarse)
@@ -486,13 +488,18 @@ def records_flush(ears, recs):
     fine cell's coarse cell)."""
     for a, b, bl, S, R in recs:
         L_r = safe_div(S, bl)
-        vals = [L_r * L_r, L_r, mi.Float(1.0), R]
-        ears.grid.add(a, vals, bl > 0, mode=DIRECT)
-        ears.coarse.add(b, vals, bl > 0, mode=DIRECT)
-        # (an atomic max: commutative, so no scatter has to wait for another, which a plain
-        # scatter into the same array would, splitting the kernel: any coarse cell a fine cell
-        # lies in will do)
-        dr.scatter_reduce(dr.ReduceOp.Max, ears.parent, b, a, bl > 0, mode=DIRECT)
+        record_sums(ears, (a, b), [L_r * L_r, L_r, mi.Float(1.0), R], bl > 0)
+
+
+def record_sums(ears, cell, vals, active):
+    """Statistics (sums of L_r^2, L_r, copies, cost) to the fine and the coarse cell ``cell``,
+    and the coarse cell as the fine one's parent."""
+    ears.grid.add(cell[0], vals, active, mode=DIRECT)
+    ears.coarse.add(cell[1], vals, active, mode=DIRECT)
+    # (an atomic max: commutative, so no scatter has to wait for another, which a plain
+    # scatter into the same array would, splitting the kernel: any coarse cell a fine cell
+    # lies in will do)
+    dr.scatter_reduce(dr.ReduceOp.Max, ears.parent, cell[1], cell[0], active, mode=DIRECT)
 
 
 def copy_weight(n):
@@ -522,7 +529,10 @@ class Wavefront:
     def __init__(self, integ, ears: EARS, max_lanes: int):
         self.integ, self.ears, self.max_lanes = integ, ears, int(max_lanes)
         split = ears.mode == "split"
-        self.replicated = ears.split_depth if split else 0
+        #: splitting at the first hit only: its copies run in the megakernel, one after another
+        #: in the lane (:meth:`roulette_kernel`); splitting deeper replicates lanes
+        self.copies = split and ears.split_depth == 1
+        self.replicated = ears.split_depth if split and not self.copies else 0
         self.stats = dict(camera_rays=0, continuation_rays=0, shadow_rays=0, camera_samples=0,
                           max_lanes=0, bounces=0, batches=0, capped_bounces=0)
 
@@ -657,10 +667,6 @@ class Wavefront:
                                n, u, cell, alive, recs,
                                learn)
         bounce = 0
-        if state is not None and self.replicated <= 1:
-            bounce += self.tail(scene, sel, sampler, state, limit, recs,
-                                seed_mix(seed, b0, bounce, 0x7A11), learn)
-            state = None
         while state is not None:
             bounce += 1
             sampler.seed(dr.opaque(mi.UInt32, seed_mix(seed, b0, bounce)), state["width"])
@@ -701,10 +707,14 @@ class Wavefront:
     @record_once
     @dr.syntax
     def roulette_kernel(self, scene, sel, sampler, ray, pixel, limit, learn: bool):
-        """Every path of a batch in one kernel (Mitsuba's megakernel), with the learned factors
-        clamped to one: roulette with survival n where n < 1, no copies.  The records of the
-        first ``LEARN_DEPTH`` vertices live in registers and go to the grids when the path
-        ends.  Returns (L, valid, cost, continuation rays) per camera sample."""
+        """Every path of a batch in one kernel (Mitsuba's megakernel).  At the first hit
+        floor(n + u) copies of the continuation, each weighted 1/n, run one after another in
+        the lane, each restarting from the first hit with a BSDF sample of its own (n clamped
+        to one in ``classic`` and ``roulette`` passes: roulette only); at the later vertices
+        roulette with survival min(n, 1).  The records live in registers: the first hit's as
+        sums over its copies (L_r, L_r^2, copies, cost), the deeper ones' for the first copy
+        (a subset chosen before any outcome: the statistics stay fair); they go to the grids
+        when the lane ends.  Returns (L, valid, cost, continuation rays) per camera sample."""
         ears = self.ears
         si, L = self.integ.camera_hit(scene, ray, True)
         valid = si.is_valid()
@@ -713,37 +723,70 @@ class Wavefront:
         L += L_nee
         beta, eta, depth = mi.Spectrum(1.0), mi.Float(1.0), mi.UInt32(0)
         n, classic, cell = ears.factor(si, beta, eta, depth, pixel, sampler, alive)
-        q = dr.minimum(n, 1.0)
-        alive &= sampler.next_1d() < q
-        beta *= copy_weight(q)
-        # record k: (fine cell, coarse cell, luminance of the copy's beta, sum of its copy's
-        # contributions, sum of their cost), made where the copy of vertex k survived
-        recs = [(cell[0], cell[1], dr.select(alive, luminance(beta), 0.0), mi.Float(0.0),
-                 mi.Float(0.0))]
-        recs += [(mi.UInt32(0), mi.UInt32(0), mi.Float(0.0), mi.Float(0.0), mi.Float(0.0))
-                 for _ in range(LEARN_DEPTH - 1)]
+        if not self.copies:
+            n = dr.minimum(n, 1.0)
+        # floor(n + u) copies of the first hit's continuation, each weighted 1/n (n < 1:
+        # roulette), run one after another in the lane
+        copies = mi.UInt32(dr.floor(n + sampler.next_1d()))
+        alive &= copies > 0
+        left = dr.select(alive, copies - 1, 0)
+        w0 = copy_weight(n)
+        beta *= w0
+        blum0 = dr.select(alive, luminance(beta), 0.0)
+        si0, classic0, cell_first = mi.SurfaceInteraction3f(si), mi.Bool(classic), cell
+        # record 0 (the first hit's cells): what the current copy added (S0, R0), and the sums
+        # over its finished copies of L_r, L_r^2, copies, cost; records of deeper vertices:
+        # (fine cell, coarse cell, luminance of the copy's beta, sum of its contributions, sum
+        # of their cost), of the first copy only
+        S0, R0 = mi.Float(0.0), mi.Float(0.0)
+        t1, t2, tn, tR = mi.Float(0.0), mi.Float(0.0), mi.Float(0.0), mi.Float(0.0)
+        recs = [(mi.UInt32(0), mi.UInt32(0), mi.Float(0.0), mi.Float(0.0), mi.Float(0.0))
+                for _ in range(LEARN_DEPTH - 1)]
+        first = mi.Bool(True)
+        fresh = mi.Bool(False)
         active = mi.Bool(alive)
         # (counted per lane: an atomic counter shared by all lanes cost a tenth of the kernel)
         traced = mi.UInt32(0)
         while dr.hint(active, label="ears kernel", exclude=[limit, pixel]):
             _, _, si_n, beta, eta, depth, alive, c, k, pre, act = self.continuation(
-                scene, sel, sampler, si, beta, eta, depth, classic, limit, active, pre)
+                scene, sel, sampler, si, beta, eta, depth, classic, limit, active, pre, fresh)
             L += c
             cost += k
             traced += dr.select(act, 1, 0)
-            # record j (made at depth j) gathers what every later continuation adds
             lc = luminance(c)
-            recs = records_add(recs, depth, lc, k)
-            n, classic, cell = ears.factor(si_n, beta, eta, depth, pixel, sampler, alive)
+            S0 += lc
+            R0 += k
+            d1 = dr.select(first, depth, 0)
+            recs = records_add(recs, d1, lc, k, 1)
+            n, classic, cell = ears.factor(si_n, beta, eta, depth, pixel, sampler, alive,
+                                           False)
             q = dr.minimum(n, 1.0)
             alive &= sampler.next_1d() < q
             beta *= copy_weight(q)
             blum = dr.select(alive, luminance(beta), 0.0)
-            recs = records_start(recs, depth, cell, blum)
-            si = si_n
-            active = alive
+            recs = records_start(recs, d1, cell, blum, 1)
+            # a copy ends: its L_r to record 0's sums; the next copy restarts at the first hit
+            end = active & lnot(alive)
+            L_r = safe_div(S0, blum0)
+            t1 += dr.select(end, L_r, 0.0)
+            t2 += dr.select(end, L_r * L_r, 0.0)
+            tn += dr.select(end, 1.0, 0.0)
+            tR += dr.select(end, R0, 0.0)
+            S0 = dr.select(end, 0.0, S0)
+            R0 = dr.select(end, 0.0, R0)
+            restart = end & (left > 0)
+            left -= dr.select(restart, 1, 0)
+            first &= lnot(end)
+            fresh = restart
+            si = dr.select(restart, si0, si_n)
+            beta = dr.select(restart, mi.Spectrum(w0), beta)
+            eta = dr.select(restart, 1.0, eta)
+            depth = dr.select(restart, 0, depth)
+            classic = dr.select(restart, classic0, classic)
+            active = alive | restart
         if learn:
             records_flush(ears, recs)
+            record_sums(ears, cell_first, [t2, t1, tn, tR], tn > 0)
         return L, valid, cost, traced
 
     @record_once
