@@ -52,7 +52,7 @@ METHODS = {
              "every vertex, learned from the render's own earlier passes, one kernel"),
     "ears_split": ({"type": "nee_path", "rr": "adaptive", "split_policy": "always"},
                    "`nee_path rr=adaptive split_policy=always`: EARS roulette and splitting, the "
-                   "first hit split by path replication"),
+                   "first hit's copies one after another in the megakernel's lane"),
 }
 BASELINE = "nee_path"
 #: fractions of a budget per pass (doubling passes)

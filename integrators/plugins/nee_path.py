@@ -24,9 +24,10 @@ The lecture's estimator with each degree of freedom of its last slide as a param
   passes of the same render, decides how many copies continue the path (n < 1: roulette with
   survival n; n > 1: floor(n) or ceil(n) copies, each weighted 1/n).  By default
   (``split_policy=never``) n is clamped to one, roulette only, every path in one kernel; with
-  ``always`` (or ``measured``, chosen per render) the first ``split_depth`` vertices split and
-  split paths become new lanes of a wavefront (:mod:`integrators.sampling.splitting`), at most
-  ``max_lanes`` alive at once.  ``render`` is then this integrator's own (JIT variants only), the learned state is kept
+  ``always`` (or ``measured``, chosen per render) the first ``split_depth`` vertices split: the
+  first hit's copies one after another in the lane of the same kernel (``split_depth`` 1, the
+  default), deeper splits as new lanes of a wavefront (:mod:`integrators.sampling.splitting`),
+  at most ``max_lanes`` alive at once.  ``render`` is then this integrator's own (JIT variants only), the learned state is kept
   per scene across passes, and ``stats`` counts the rays it traced.  ``split`` must be 1 then.
 
 With ``heuristic=power, light_selection=uniform, rr=throughput, light_samples=1, split=1`` this is
@@ -64,12 +65,12 @@ class NEEPath(IntegratorTemplate):
         Param("split_max", "int", 4, min=1, max=64,
               doc="rr=adaptive: largest number of copies a vertex splits into."),
         Param("split_depth", "int", 1, min=1, max=64,
-              doc="rr=adaptive: vertices from the first hit where a path may split (by path "
+              doc="rr=adaptive: vertices from the first hit where a path may split (1: the "
+                  "first hit's copies one after another in one kernel; more: by path "
                   "replication); deeper ones use roulette only."),
         Param("split_policy", "choice", "never", choices=splitting.POLICIES,
               doc="rr=adaptive: never (learned roulette only, every path in one kernel), "
-                  "always (learned splitting by path replication at the first split_depth "
-                  "vertices), measured (one pass of each, then the more efficient as "
+                  "always (learned splitting at the first split_depth vertices), measured (one pass of each, then the more efficient as "
                   "measured in the render)."),
         Param("max_lanes", "int", 1 << 20, min=1 << 10, max=1 << 26,
               doc="rr=adaptive: paths alive at once (bounds memory; split factors are scaled "

@@ -68,21 +68,34 @@ the cells with copies only, 1.5-3 ms a pass instead of 5) 0.72/0.71/0.76x and 1.
 
 **Modes and the policy.**  A pass runs in one of ``MODES``: ``classic`` while nothing is
 learned (the throughput rule, records kept), ``roulette`` (the learned n clamped to one:
-survival n where n < 1, no copies) and ``split`` (the learned n, splitting by path replication
-at the first ``split_depth`` vertices).  The first two run every path of a batch in one kernel
+survival n where n < 1, no copies) and ``split`` (the learned n, splitting at the first
+``split_depth`` vertices).  All three run every path of a batch in one kernel
 (:meth:`Wavefront.roulette_kernel`, Mitsuba's megakernel: the light samples' BSDF sample is
-reused for the continuation, rays are counted per lane).  ``split_policy`` (``POLICIES``)
-chooses: ``never`` (roulette only; the default), ``always``, or ``measured`` (after the classic
-pass one roulette and one split pass, then the mode of higher measured efficiency, 1 / (the
-pass's relative variance against the current pixel means x its seconds per camera sample, less
-Dr.Jit's compilation: :func:`pass_clock`), renewed by every pass it runs).  Measured (96 px,
-128 spp in doubling passes, 3 repeats, efficiency relative to ``nee_path rr=throughput``;
-indirect room, dark scene with a bright light, glossy scene, heavy mesh): roulette only
-1.23/1.78/0.97/1.27, splitting the first hit 1.05/1.68/0.89/1.25, measured 0.76/1.59/0.89/1.19
-(when ``classic`` still competed, one early pass's heavy-tailed variance made it the choice in
-the indirect room; it now runs only while nothing is learned).  Splitting lowers the error at
-equal samples (relMSE 0.015 against roulette's 0.031 and the baseline's 0.056 in the indirect
-room) but costs more than it saves on the CPU backend.
+reused for the continuation, rays are counted per lane) when only the first hit may split (the
+default ``split_depth`` 1); deeper splitting replicates lanes (below).  ``split_policy``
+(``POLICIES``) chooses: ``never`` (roulette only; the default), ``always``, or ``measured``
+(after the classic pass one roulette and one split pass, then the mode of higher measured
+efficiency, 1 / (the pass's relative variance against the current pixel means x its seconds
+per camera sample, less Dr.Jit's compilation: :func:`pass_clock`), renewed by every pass it
+runs; when ``classic`` still competed, one early pass's heavy-tailed variance made it the
+choice in the indirect room; it now runs only while nothing is learned).
+
+**The first hit's copies in the megakernel.**  With ``split_depth`` 1 a lane makes floor(n + u)
+copies of its first hit's continuation and runs them one after another: when a copy's path
+ends, the lane restarts from the first hit (kept in registers) with the copy weight 1/n and a
+BSDF sample of its own.  The camera ray and the first hit's light samples are shared, as with
+``nee_path``'s fixed ``split``, and no lane is written, compacted or gathered.  The first hit's
+record sums its copies' L_r, L_r^2 and cost in registers; the deeper records are the first
+copy's.  A SIMD packet runs as long as its longest lane, so lanes that draw different numbers
+of copies idle; the lanes of a packet are samples of the same pixel, whose n is about the same.
+Side runs, steady state (48 px, 256-spp passes after 8 learning ones, efficiency 1 / (per-pixel
+relative variance x seconds) relative to ``nee_path rr=throughput``; split / roulette only):
+indirect room 1.56/1.40, dark scene with a bright light 1.53/1.74, glossy scene 1.10/1.05,
+ajar door 1.14/0.89, ``specular_box`` 0.79/0.79, lamp in a glass shade 0.63/0.77 (there the
+copies, each of weight 1/n, are rouletted harder behind the first hit: 1.7x the continuation
+rays for 0.68x the variance, where ``split=4`` with throughput roulette gives 3.7x the time for
+0.26x).  Replicating the first hit instead (the wavefront below, then the tail kernel) was
+0.67-0.76x in the indirect room.
 
 **Path replication (the wavefront).**  Camera samples are processed in batches.  Per bounce one
 kernel runs over the live lanes (:meth:`Wavefront.continuation`): the BSDF sample, its ray, the
@@ -98,9 +111,9 @@ are splatted into the film (Mitsuba's ``ImageBlock``, with the film's reconstruc
 With every lane of the same policy (the throughput rule), a bounce of the wavefront costs about
 1.8x a bounce of Mitsuba's megakernel in wall time (the state written and gathered, the
 compaction's kernels, host synchronisations), a loop in one kernel 1.3-1.5x, so only the first
-``split_depth`` vertices of a path are replicated (one by default: the first hit, where
-splitting pays most); the lanes then finish in one kernel, a loop over the bounces with roulette
-only (:meth:`Wavefront.tail`; n clamped to 1; copies of a split vertex draw their own BSDF
+``split_depth`` vertices of a path are replicated (``split_depth`` >= 2; with 1, the default,
+the first hit's copies run in the megakernel, above); the lanes then finish in one kernel, a
+loop over the bounces with roulette only (:meth:`Wavefront.tail`; n clamped to 1; copies of a split vertex draw their own BSDF
 sample, then reuse the one drawn with the light samples).  Splitting deeper was measured not to
 pay (indirect room and glossy scene, 128 spp, efficiency relative to the baseline: 0.70x and
 0.56x with splits up to the fourth vertex and records at three, 0.90x / 0.67x as now; glossy
@@ -747,7 +760,10 @@ class Wavefront:
         active = mi.Bool(alive)
         # (counted per lane: an atomic counter shared by all lanes cost a tenth of the kernel)
         traced = mi.UInt32(0)
-        while dr.hint(active, label="ears kernel", exclude=[limit, pixel]):
+        # (read-only values stay out of the loop state: a narrow one, such as a literal
+        # field of si0 or classic0 in a classic pass, would have the loop recorded twice)
+        while dr.hint(active, label="ears kernel",
+                      exclude=[limit, pixel, si0, classic0, w0, blum0]):
             _, _, si_n, beta, eta, depth, alive, c, k, pre, act = self.continuation(
                 scene, sel, sampler, si, beta, eta, depth, classic, limit, active, pre, fresh)
             L += c
