@@ -26,6 +26,7 @@ CONFIGS = [
     {"type": "nee_path", "light_selection": "ris"},
     {"type": "nee_path", "light_selection": "bvh", "light_samples": 3},
     {"type": "nee_path", "rr": "adaptive"},
+    {"type": "nee_path", "rr": "adaptive", "split_policy": "always"},
     {"type": "nee_path", "split": 2},
     {"type": "mis3"},
     {"type": "mis3", "selection": "fixed"},
