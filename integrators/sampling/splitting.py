@@ -162,7 +162,16 @@ of it, paths of more varied length idling SIMD lanes: learned roulette keeps sur
 n >= 1 (the throughput rule caps it at 0.95), so a packet of 16 lanes runs as long as its
 longest path: 10.96 bounces on average against 8.45 for the classic rule (1.30x, the kernel's
 1.31x) for paths of 4.92 against 4.46 bounces (lanes busy 45 % against 53 % of the iterations;
-frozen table, 64 spp).  Per unit of work (rays, a shadow ray counting half) a split pass with
+frozen table, 64 spp).  Measured again with the first hit's copies in the kernel (indirect
+room, 96 px, 256 spp in doubling passes; the pass of 128 spp): the kernel in the classic mode,
+records kept, 1.15x ``nee_path``'s time at equal rays; the learned pass 1.27x the classic one's
+for 1.17x its continuation and 1.14x its shadow rays; learning frozen (no records) 0.92x the
+learning pass's time in a 64-spp pass.  Not kept: a ``dr.ReduceMode.Local`` flush of the records
+(whole renders 1.30 / 1.49 / 1.24x ``nee_path``'s time against 1.31 / 1.48 / 1.28x with
+``Direct`` on the lamp in a glass shade, the indirect room and the ajar door); survival capped
+at 0.95 or 0.9 where n >= 1, as the throughput rule caps it (indirect room: time 1.47x -> 1.47x
+/ 1.41x, relMSE 0.50 -> 0.55 / 0.60 of ``nee_path``'s: the long paths are not where the time
+goes); no BSDF-flags query for the smooth test (4 % of the pass).  Per unit of work (rays, a shadow ray counting half) a split pass with
 three replicated bounces cost about 1.7x Mitsuba's megakernel on the LLVM backend (glossy scene,
 learned policy, learning frozen: 2.1 s against nee_path's 0.45 s for 2.9x its rays): the
 replicated bounces (state written and gathered, compaction, host synchronisations) and a tail
