@@ -168,10 +168,12 @@ records kept, 1.15x ``nee_path``'s time at equal rays; the learned pass 1.27x th
 for 1.17x its continuation and 1.14x its shadow rays; learning frozen (no records) 0.92x the
 learning pass's time in a 64-spp pass.  Not kept: a ``dr.ReduceMode.Local`` flush of the records
 (whole renders 1.30 / 1.49 / 1.24x ``nee_path``'s time against 1.31 / 1.48 / 1.28x with
-``Direct`` on the lamp in a glass shade, the indirect room and the ajar door); survival capped
+``Direct`` on the lamp in a glass shade, the indirect room and the ajar door) and survival capped
 at 0.95 or 0.9 where n >= 1, as the throughput rule caps it (indirect room: time 1.47x -> 1.47x
 / 1.41x, relMSE 0.50 -> 0.55 / 0.60 of ``nee_path``'s: the long paths are not where the time
-goes); no BSDF-flags query for the smooth test (4 % of the pass).  Per unit of work (rays, a shadow ray counting half) a split pass with
+goes).  The smooth test's BSDF-flags query costs 4 % of the pass; deciding from the lobe the
+vertex's BSDF sample drew instead would bias the first hit's copies (their number would depend
+on the first copy's own sample).  Per unit of work (rays, a shadow ray counting half) a split pass with
 three replicated bounces cost about 1.7x Mitsuba's megakernel on the LLVM backend (glossy scene,
 learned policy, learning frozen: 2.1 s against nee_path's 0.45 s for 2.9x its rays): the
 replicated bounces (state written and gathered, compaction, host synchronisations) and a tail
