@@ -1,6 +1,7 @@
 """Mutants of nee_path rr=adaptive (EARS roulette and splitting with path replication; see
-tests/mutation.py for the format).  Each plants one plausible bug in the replication or the
-weights; tests/test_ears.py must fail for every one (``python tests/mutation.py --only NAME``)."""
+tests/mutation.py for the format).  Each plants one plausible bug in the replication, the
+weights or the learned policy's scale; tests/test_ears.py (or the test a mutant names) must
+fail for every one (``python tests/mutation.py --only NAME``)."""
 
 _S = "integrators/sampling/splitting.py"
 _T = ["test_ears.py"]
@@ -71,4 +72,10 @@ MUTANTS = [
     ("ears-throughput-rule-uncompensated", _S,
      "        beta, survives = self.ears.throughput_roulette(",
      "        _, survives = self.ears.throughput_roulette(", _T),
+    # the pixel means that scale the learned factors taken with the sensor's weight (in
+    # spectral variants the wavelength sample's importance weight): no bias, but the learned
+    # policy rouletted at rr_min everywhere in spectral variants (caught in test_variants.py)
+    ("ears-pixel-with-sensor-weight", _S,
+     "            lum = luminance(L)\n", "            lum = luminance(L * weight)\n",
+     ["test_variants.py::test_spectral_learned_roulette_traces_as_in_rgb"]),
 ]

@@ -624,7 +624,10 @@ class Wavefront:
             ADIntegrator._splat_to_block(block, film, pos, value=L * weight, weight=1.0,
                                          alpha=dr.select(valid, mi.Float(1), mi.Float(0)),
                                          aovs=[], wavelengths=ray.wavelengths)
-            lum = luminance(L * weight)
+            # (the pixel in the units of the paths' throughputs, whose ratio to it is w: the
+            # radiance along the camera ray, without the sensor's weight, which in spectral
+            # variants is the wavelength sample's importance weight, tens of times the radiance)
+            lum = luminance(L)
             dr.scatter_reduce(dr.ReduceOp.Add, self.ears.pass_s1, lum, pixel, mode=DIRECT)
             dr.scatter_reduce(dr.ReduceOp.Add, self.ears.pass_s2, lum * lum, pixel, mode=DIRECT)
             dr.eval(block.tensor(), self.ears.pass_s1, self.ears.pass_s2)
