@@ -123,7 +123,8 @@ for t, extra in (("nee_path", {}), ("mis3", {}), ("nee_path_adaptive", {"rr": "a
 def test_spectral_variant_same_image_as_path():
     """In ``llvm_ad_spectral`` (a fresh interpreter): H0 the same expected image as Mitsuba's
     ``path`` in the same variant for ``nee_path`` (throughput and learned roulette) and ``mis3``
-    (an RGB emitter is not white there, so no closed form), block-wise Welch t at the kit's alpha; each check also strong enough for a 5 % bias."""
+    (an RGB emitter is not white there, so no closed form), block-wise Welch t at the kit's
+    alpha; each check also strong enough for a 5 % bias."""
     import subprocess
     import sys
     from pathlib import Path
