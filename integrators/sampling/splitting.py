@@ -574,6 +574,8 @@ class Wavefront:
         self.replicated = ears.split_depth if split and not self.copies else 0
         self.stats = dict(camera_rays=0, continuation_rays=0, shadow_rays=0, camera_samples=0,
                           max_lanes=0, bounces=0, batches=0, capped_bounces=0)
+        #: the megakernel's sums of work and rays over the pass's batches (kernel_batch)
+        self._totals = None
 
     # ---- camera samples ----------------------------------------------------------------------
     @staticmethod
@@ -645,9 +647,10 @@ class Wavefront:
             lum = luminance(L)
             dr.scatter_reduce(dr.ReduceOp.Add, self.ears.pass_s1, lum, pixel, mode=DIRECT)
             dr.scatter_reduce(dr.ReduceOp.Add, self.ears.pass_s2, lum * lum, pixel, mode=DIRECT)
-            dr.eval(block.tensor(), self.ears.pass_s1, self.ears.pass_s2)
+            dr.eval(block.tensor(), self.ears.pass_s1, self.ears.pass_s2, self._totals)
             self.stats["batches"] += 1
             self.stats["camera_samples"] += n
+        self.kernel_totals()
         self.ears.lane_demand = self._demand
         return block
 
@@ -659,15 +662,28 @@ class Wavefront:
         learn = ears.learning and ears.forced is None
         L, valid, cost, traced = self.roulette_kernel(scene, sel, sampler, ray, pixel,
                                                       depth_limit(integ.max_depth), learn)
-        # one kernel: the loop's outputs (its scatters go with them) before the reductions
-        dr.eval(L, valid, cost, traced)
-        work, rays = float(dr.sum(cost)[0]), int(dr.sum(traced)[0])
+        # the batch's work and rays summed in the same kernel (one expanded element per
+        # thread), read once the pass is done (:meth:`kernel_totals`): no reduction kernel and
+        # no host synchronisation per batch; the caller's splat goes with the loop too
+        if self._totals is None:
+            self._totals = (dr.zeros(mi.Float, 1), dr.zeros(mi.UInt32, 1))
+        zero = mi.UInt32(0)
+        dr.scatter_reduce(dr.ReduceOp.Add, self._totals[0], cost, zero, mode=FLUSH)
+        dr.scatter_reduce(dr.ReduceOp.Add, self._totals[1], traced, zero, mode=FLUSH)
         self.stats["camera_rays"] += n_cam
-        self.stats["continuation_rays"] += rays
-        self.stats["shadow_rays"] += int(round((work - rays) / SHADOW_COST))
-        ears.pass_cost += work + CAMERA_COST * n_cam
+        ears.pass_cost += CAMERA_COST * n_cam
         self._demand = max(self._demand, 1.0)
         return L, valid
+
+    def kernel_totals(self):
+        """The megakernel batches' work and rays into ``stats`` and the pass's cost."""
+        if self._totals is None:
+            return
+        work, rays = float(self._totals[0][0]), int(self._totals[1][0])
+        self._totals = None
+        self.stats["continuation_rays"] += rays
+        self.stats["shadow_rays"] += int(round((work - rays) / SHADOW_COST))
+        self.ears.pass_cost += work
 
     def batch(self, scene, sampler, ray, pixel, seed: int, b0: int):
         """Every path of one batch of camera samples: (L per camera sample, valid)."""
