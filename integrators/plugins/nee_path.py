@@ -27,8 +27,9 @@ The lecture's estimator with each degree of freedom of its last slide as a param
   ``always`` (or ``measured``, chosen per render) the first ``split_depth`` vertices split: the
   first hit's copies one after another in the lane of the same kernel (``split_depth`` 1, the
   default), deeper splits as new lanes of a wavefront (:mod:`integrators.sampling.splitting`),
-  at most ``max_lanes`` alive at once.  ``render`` is then this integrator's own (JIT variants only), the learned state is kept
-  per scene across passes, and ``stats`` counts the rays it traced.  ``split`` must be 1 then.
+  at most ``max_lanes`` alive at once.  ``render`` is then this integrator's own (JIT variants
+  only), the learned state is kept per scene across passes, and ``stats`` counts the rays it
+  traced.  ``split`` must be 1 then.
 
 With ``heuristic=power, light_selection=uniform, rr=throughput, light_samples=1, split=1`` this is
 the estimator of Mitsuba's built-in ``path`` (tested statistically on the Cornell box).
@@ -70,8 +71,8 @@ class NEEPath(IntegratorTemplate):
                   "replication); deeper ones use roulette only."),
         Param("split_policy", "choice", "never", choices=splitting.POLICIES,
               doc="rr=adaptive: never (learned roulette only, every path in one kernel), "
-                  "always (learned splitting at the first split_depth vertices), measured (one pass of each, then the more efficient as "
-                  "measured in the render)."),
+                  "always (learned splitting at the first split_depth vertices), measured "
+                  "(one pass of each, then the more efficient as measured in the render)."),
         Param("max_lanes", "int", 1 << 20, min=1 << 10, max=1 << 26,
               doc="rr=adaptive: paths alive at once (bounds memory; split factors are scaled "
                   "down where a bounce would pass it)."),

@@ -121,11 +121,12 @@ With every lane of the same policy (the throughput rule), a bounce of the wavefr
 compaction's kernels, host synchronisations), a loop in one kernel 1.3-1.5x, so only the first
 ``split_depth`` vertices of a path are replicated (``split_depth`` >= 2; with 1, the default,
 the first hit's copies run in the megakernel, above); the lanes then finish in one kernel, a
-loop over the bounces with roulette only (:meth:`Wavefront.tail`; n clamped to 1; copies of a split vertex draw their own BSDF
-sample, then reuse the one drawn with the light samples).  Splitting deeper was measured not to
-pay (indirect room and glossy scene, 128 spp, efficiency relative to the baseline: 0.70x and
-0.56x with splits up to the fourth vertex and records at three, 0.90x / 0.67x as now; glossy
-scene with the batches sized as below, records at 1 / 2 / 3 bounces: 0.58x / 0.80x / 0.67x).
+loop over the bounces with roulette only (:meth:`Wavefront.tail`; n clamped to 1; copies of a
+split vertex draw their own BSDF sample, then reuse the one drawn with the light samples).
+Splitting deeper was measured not to pay (indirect room and glossy scene, 128 spp, efficiency
+relative to the baseline: 0.70x and 0.56x with splits up to the fourth vertex and records at
+three, 0.90x / 0.67x as now; glossy scene with the batches sized as below, records at 1 / 2 / 3
+bounces: 0.58x / 0.80x / 0.67x).
 
 **Memory.**  At most ``max_lanes`` lanes are alive: where the copies of a bounce could pass the
 cap, every n of that bounce is scaled by s = (cap - A) / sum n (A the live lanes), computed
@@ -181,9 +182,10 @@ at 0.95 or 0.9 where n >= 1, as the throughput rule caps it (indirect room: time
 / 1.41x, relMSE 0.50 -> 0.55 / 0.60 of ``nee_path``'s: the long paths are not where the time
 goes).  The smooth test's BSDF-flags query costs 4 % of the pass; deciding from the lobe the
 vertex's BSDF sample drew instead would bias the first hit's copies (their number would depend
-on the first copy's own sample).  Per unit of work (rays, a shadow ray counting half) a split pass with
-three replicated bounces cost about 1.7x Mitsuba's megakernel on the LLVM backend (glossy scene,
-learned policy, learning frozen: 2.1 s against nee_path's 0.45 s for 2.9x its rays): the
+on the first copy's own sample).  Per unit of work (rays, a shadow ray counting half) a split
+pass with three replicated bounces cost about 1.7x Mitsuba's megakernel on the LLVM backend
+(glossy scene, learned policy, learning frozen: 2.1 s against nee_path's 0.45 s for 2.9x its
+rays): the
 replicated bounces (state written and gathered, compaction, host synchronisations) and a tail
 loop whose SIMD packets idle while their last lanes finish.  Measured and not kept: compacting
 the tail every 4 bounces (kernel time 0.72x, but the extra launches and traces ate it: 0.99x
