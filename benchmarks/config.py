@@ -53,7 +53,7 @@ PATH_METHODS = (
     Method("mis3", "path", {"type": "mis3", "max_depth": PATH_DEPTH},
            "our `mis3` with its defaults: the BSDF's own sample continues every path, the "
            "light-sample allocation (probability below one, expected count up to 4 above) "
-           "learned per region from the render's own first eighth of samples (learning is in "
+           "learned per region from the render's own first sixteenth of samples (learning is in "
            "the time), adaptive light selection, balance heuristic"),
     Method("mis3_fixed", "path",
            {"type": "mis3", "max_depth": PATH_DEPTH, "selection": "fixed"},

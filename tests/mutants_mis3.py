@@ -17,8 +17,8 @@ MUTANTS = [
     # the learned allocation's variance model back to M - mu^2 (negative wherever both
     # techniques share the mean: every allocation then looked free of variance)
     ("allocation-variance-minus-mean-squared", "integrators/plugins/mis3.py",
-     "np.maximum(second - spread * (mean_l ** 2 / c + (mean - mean_l) ** 2), 0.0)",
-     "np.maximum(second - spread * mean ** 2, 0.0)", ["test_mis3_learned.py"]),
+     "np.maximum(second - (light / c + (mean - mean_l) ** 2), 0.0)",
+     "np.maximum(second - mean ** 2, 0.0)", ["test_mis3_learned.py"]),
     # the learning statistics of a BSDF-sampled emission hit with the vertex's weight applied
     # twice (the pre-update throughput aliased by the in-place update: the bug before stop 30)
     ("learned-hit-weight-twice", "integrators/sampling/vertex.py",
@@ -28,12 +28,18 @@ MUTANTS = [
     # the recorded paths ignored: the rest of the pixel sample back to the stand-in
     ("learned-rest-of-path-ignored", "integrators/plugins/mis3.py",
      "have = n_p >= LEARN_MIN_PATHS", "have = n_p < 0", ["test_mis3_learned.py"]),
-    # the pooled variance taken as the vertex's noise (the spread between points ignored)
-    ("learned-spread-ignored", "integrators/plugins/mis3.py",
-     "var = allocation_variance(second, mean, mean_l, spread=spread)",
-     "var = allocation_variance(second, mean, mean_l, spread=1.0)", ["test_mis3_learned.py"]),
+    # the light share's squared mean between points ignored: the pooled variance read as noise
+    ("learned-pairs-ignored", "integrators/plugins/mis3.py",
+     "sq_l = st[:, PAIRS:PAIRS + k] / nn if LEARN_PAIRS else None", "sq_l = None",
+     ["test_mis3_learned.py"]),
     # one light estimate squared instead of the product of two independent ones
     ("learned-pair-not-independent", "integrators/plugins/mis3.py",
-     "self.grid.add(idx, {PATH_STATS + 4: z[0] * z[1]}, act)",
-     "self.grid.add(idx, {PATH_STATS + 4: z[0] * z[0]}, act)", ["test_mis3_learned.py"]),
+     "self.grid.add(idx, {PAIRS + j: z[0][j] * z[1][j] for j in range(len(LEARNED_P))}, act)",
+     "self.grid.add(idx, {PAIRS + j: z[0][j] * z[0][j] for j in range(len(LEARNED_P))}, act)",
+     ["test_mis3_learned.py"]),
+    # the margin that protects one light sample also against candidates above one (whose
+    # estimates are not heavy-tailed): allocations that pay up to 20 % are refused
+    ("learned-margin-above-one", "integrators/plugins/mis3.py",
+     "below = np.array(LEARNED_P)[arg] < 1.0", "below = np.array(LEARNED_P)[arg] > 0.0",
+     ["test_mis3_learned.py"]),
 ]

@@ -143,66 +143,71 @@ def test_allocation_variance_is_the_estimators_variance(c):
 def _region_statistics(k, v_rest, spread=1.0, n=1000, n_paths=500):
     """One region's statistics (the layout of mis3's RegionGrid): a vertex whose light
     technique carries the whole mean mu = 1, pooled second moment M(c) = 2 / c over points
-    whose squared mean averages ``spread`` (per-point noise (2 - spread) / c at c >= 1 light
-    samples: spread 1, variance 1 / c; spread 1.9, 0.1 / c and the rest variation of the mean
-    between points); recorded paths whose variance is the pooled one at one light sample plus
-    v_rest, their cost 2 vertices more than the vertex's own."""
+    whose light share's squared mean averages ``spread`` (per-point noise (2 - spread) / c at
+    c >= 1 light samples: spread 1, variance 1 / c; spread 1.9, 0.1 / c and the rest variation
+    of the mean between points); recorded paths whose variance is the pooled one at one light
+    sample plus v_rest, their cost 2 vertices more than the vertex's own."""
     from integrators.plugins import mis3 as M
     cand = np.array(M.LEARNED_P)
-    st = np.zeros(M.PATH_STATS + 5)
+    st = np.zeros(M.PAIRS + k)
     st[:k] = n * 2.0 / cand                                         # M(c)
     st[k], st[k + 1], st[k + 2] = n * 1.0, n, n                     # mean, visits, hits
     st[k + 3:M.PATH_STATS] = n * 1.0                                # mu_l(c) = mu
     v_pix, c_pix, mean = 1.0 + v_rest, 1.0 + M.LIGHT_COST + 2.0, 2.0
     st[M.PATH_STATS:M.PATH_STATS + 4] = [n_paths * (v_pix + mean ** 2), n_paths * mean,
                                          n_paths * c_pix, n_paths]
-    st[M.PATH_STATS + 4] = n * spread                               # the points' mean squared
+    st[M.PAIRS:] = n * spread                                       # E[m_l(x; c)^2]
     return st
 
 
 def test_learned_objective_weighs_the_pixel_sample_and_the_noise():
     """The allocation minimises variance x cost of the whole pixel sample, the rest of the
     path measured per region from the recorded paths, and counts as the vertex's variance only
-    its noise (the pooled statistics less the variation of the mean between the region's
-    points, measured by pairs of light samples).  Four regions, deterministic:
-    * no variance elsewhere on the paths: 4 light samples (variance 1/c, cost 3 + c/2);
+    its noise (the pooled statistics less the variation of the light share's mean between the
+    region's points, measured by pairs of light samples).  Five regions, deterministic
+    (variance 1/c + v_rest, cost 1 + c/2 + 2):
+    * no variance elsewhere on the paths: 4 light samples;
     * 20x the vertex's variance elsewhere: one (more would cost more than they save);
-    * 0.2 elsewhere, variance 1/c: 4;
+    * 0.2 elsewhere: 4;
+    * 0.9 elsewhere: 3, whose variance x cost is 0.83 of one light sample's (the margin that
+      protects one light sample holds only against candidates below one);
     * 0.2 elsewhere, but 95 % of the pooled variance is variation between points (noise
-      0.1/c): one.
+      0.1/c): 2.
     Negative controls: without the recorded paths (the LEARN_REST_VAR stand-in) the first
-    region keeps one; with the pooled variance taken as noise the last takes 4."""
+    region takes 3; with the pooled variance taken as noise the last takes 4 (and mutant
+    ``learned-margin-above-one`` keeps one in the fourth)."""
     from integrators.plugins import mis3 as M
     scene = mi.load_dict(closed_box_scene(0.5, 1.0))
     integ = mi.load_dict(LEARNED)
     mi.render(scene, integrator=integ, spp=1)            # builds the grid for this scene
     k = len(M.LEARNED_P)
-    st = np.zeros((integ.grid.size, M.PATH_STATS + 5))
-    for r, (v_rest, spread) in enumerate([(0.0, 1.0), (20.0, 1.0), (0.2, 1.0), (0.2, 1.9)]):
+    st = np.zeros((integ.grid.size, M.PAIRS + k))
+    for r, (v_rest, spread) in enumerate([(0.0, 1.0), (20.0, 1.0), (0.2, 1.0), (0.9, 1.0),
+                                          (0.2, 1.9)]):
         st[r] = _region_statistics(k, v_rest, spread)
 
     def learned(stats):
         integ.grid.set_table(np.full(integ.grid.size, -1.0, np.float32))
         integ.grid.stats = mi.Float(stats.ravel())
         integ.learn()
-        return list(integ.grid.table()[:4])
-    assert learned(st) == [4.0, 1.0, 4.0, 1.0]
+        return list(integ.grid.table()[:5])
+    assert learned(st) == [4.0, 1.0, 4.0, 3.0, 2.0]
     stand_in = st.copy()
     stand_in[:, M.PATH_STATS + 3] = 0.0                  # no paths recorded
-    assert learned(stand_in)[0] == 1.0
+    assert learned(stand_in)[0] == 3.0   # (1/c + 0.3) (1 + c/2): 3 instead of 4
     pooled = st.copy()
-    pooled[:, M.PATH_STATS + 4] = pooled[:, k]           # squared mean = mean^2: spread 1
-    assert learned(pooled)[3] == 4.0
+    pooled[:, M.PAIRS:] = 0.0                            # (read as the squared pooled mean)
+    assert learned(pooled)[4] == 4.0
 
 
 def test_learning_records_whole_paths_and_pairs():
     """While learning, the paths whose vertices record statistics are recorded too (in the cell
     of their first recording vertex), at most one per recording vertex, their cost at least the
     camera ray and one vertex; and each recording vertex's pair of light samples gives a
-    squared mean of the right size: on the closed emitting box (L_e = 1 everywhere, albedo
-    0.5) the direct light at the first hit (max_depth 2: no other vertex) is 0.5 everywhere,
-    so the squared mean per visit is the square of the mean per visit (within 10 %; pooled
-    over depths it would not be: throughput 1 and 0.5 mix)."""
+    squared light share of the right size: on the closed emitting box (L_e = 1 everywhere,
+    albedo 0.5, max_depth 2: only the first hit) a point's light share hardly varies within a
+    region, so per candidate the squared share per visit is the square of the share per visit
+    (within 10 %; one sample squared instead of the product of two would add its variance)."""
     from integrators.plugins import mis3 as M
     scene = mi.load_dict(closed_box_scene(0.5, 1.0))
     integ = mi.load_dict({**LEARNED, "max_depth": 2})
@@ -214,6 +219,8 @@ def test_learning_records_whole_paths_and_pairs():
     assert 0 < paths <= visits, (paths, visits)
     assert st[:, M.PATH_STATS + 2].sum() >= 2.0 * paths
     live = st[:, k + 1] > 0
-    sq = st[live, M.PATH_STATS + 4].sum() / st[live, k + 1].sum()
-    mean = st[live, k].sum() / st[live, k + 1].sum()
-    assert abs(sq / mean ** 2 - 1.0) < 0.1, (sq, mean ** 2)
+    n = st[live, k + 1]
+    share = st[live, k + 3:M.PATH_STATS] / n[:, None]
+    sq = st[live, M.PAIRS:M.PAIRS + k] / n[:, None]
+    ratio = (sq.T @ n) / ((share ** 2).T @ n)
+    assert np.all(np.abs(ratio - 1.0) < 0.1), ratio

@@ -63,18 +63,29 @@ With p(1) = p(2) = 0 (``p_light = 1``) the continuation is the BSDF's own sample
   candidates are estimated from the same samples, and so is each technique's share of the mean
   (mu_l(p), mu_b(p)); between passes each region takes the candidate minimising the variance
   x cost of the whole pixel sample, (V(p) + V_rest) (1 + 0.5 p + C_rest) (a light sample
-  costs about half a vertex).  V(p) = M(p) - s (mu_l^2 / max(p, 1) + mu_b^2)
+  costs about half a vertex).  V(p) = M(p) - S_l(p) / max(p, 1) - mu_b^2
   (:func:`allocation_variance`) is the vertex's noise: a region pools many points, and the
-  variation of the mean between them is no noise that light samples could reduce; s = E[m(x)^2]
-  / mu^2 measures it, E[m(x)^2] from the product of two independent light estimates at each
-  recording vertex (:meth:`MIS3.record_pair`, two extra shadow rays on the recorded vertices
-  of the learning pass).  V_rest and C_rest, the rest of the pixel sample, are measured: each
-  recording path is followed to its end and its estimate's square, mean and cost (rays plus
+  variation of the mean between them is no noise that light samples could reduce.  S_l(p) =
+  E[m_l(x; p)^2], the squared mean over the region's points of the light technique's share at
+  a point (m_l(x; p) = int f L_e w_l(p)), is measured per candidate: the product of two
+  independent light samples' weighted estimates at each recording vertex
+  (:meth:`MIS3.record_pair`, two extra shadow rays on the recording vertices of the learning
+  pass).  The BSDF technique's share keeps its pooled mean (its variation between points is
+  counted as noise: estimated by light samples, it is heavy-tailed on glossy surfaces).
+  History, side runs at 128 px and 512 spp against `path`: measuring the variation of the
+  total m(x) and charging it to both shares in proportion took light samples away where a
+  highlight's BSDF share varies most (veach_mis 1.28x; small_light 0.87x, furnace 0.88x); no
+  correction at all gave light samples where the tiny light's share is exact at every point
+  and only varies between points (veach_mis 1.39-1.45x, small_light 0.77-0.79x, furnace
+  1.03-1.05x); the light share per candidate: veach_mis 1.41x, small_light 0.88x, furnace
+  1.02x.  V_rest and C_rest, the rest of the pixel sample, are measured: each recording path
+  is followed to its end and its estimate's square, mean and cost (rays plus
   0.5 per expected light sample) go to the cell of its first recording vertex; V_rest is their
   variance less the vertex's pooled variance at the allocation they were recorded with, C_rest
   their cost less the vertex's (until a region has 32 such paths: 0.3 V(1) and 0,
-  ``LEARN_REST_VAR``).  A region keeps p = 1 unless another candidate promises 20 % less,
-  and p(3) = 1 until the region has 64 recorded visits and 32 non-zero samples.  The
+  ``LEARN_REST_VAR``).  A region keeps p = 1 unless a candidate below one promises 20 % less
+  (above one no margin: the estimates of M(p) there are not heavy-tailed), and p(3) = 1 until
+  the region has 64 recorded visits and 32 non-zero samples.  The
   candidates start at 0.05: the floor that keeps delta lights (which only light sampling
   reaches) and every other light reachable.
   **Candidates above one allocate light samples** (Sbert and Havran's variance-optimal sample
@@ -82,8 +93,10 @@ With p(1) = p(2) = 0 (``p_light = 1``) the continuation is the BSDF's own sample
   ceil(n) light samples, averaged, each weighted at the effective density m p_l (the
   multi-sample MIS estimator given m, unbiased for every m >= 1), and emission found by the
   BSDF sample is weighted against m p_l; M(n) is estimated by the same formula.
-  An eighth of the vertices record statistics.  A render call that is still learning spends
-  its first eighth of samples learning, then renders the rest with what it learned; learning
+  A quarter of the vertices record statistics.  A render call that is still learning spends
+  its first sixteenth of samples learning, then renders the rest with what it learned (those
+  samples render at one light sample everywhere: the smaller their share, the less they
+  weigh in the image); learning
   stops (the kernel drops its statistics) once a pass changes the decisions of less than 5 %
   of the visits.  Rendering in passes (``render --spp`` or ``--time``) keeps learning until
   then; a new scene starts from scratch (``reset_learning()`` forgets on request).
@@ -132,26 +145,35 @@ LEARN_REST_VAR = 0.3
 LEARN_MIN_PATHS = 32
 #: the statistics of a region: per candidate M(c), then the mean, visits and hits, then per
 #: candidate mu_l(c) (``_learn``), then from PATH_STATS the recorded paths' second moment, mean,
-#: cost and count (``record_path``) and the product of the pairs of light estimates
-#: (``record_pair``)
+#: cost and count (``record_path``), then from PAIRS per candidate the product of the pair of
+#: light-share estimates (``record_pair``)
 PATH_STATS = 2 * len(LEARNED_P) + 3
+PAIRS = PATH_STATS + 4
 #: visits a region needs before its learned probability replaces the adaptive one
 LEARN_MIN_VISITS = 64
 #: non-zero light samples or emission hits a region needs before it leaves p(3) = 1
 LEARN_MIN_HITS = 32
 #: a render call of selection=learned that is still learning first renders this share of its
-#: samples, learns from them, and renders the rest with what it learned
-LEARN_SHARE = 1 / 8
+#: samples, learns from them, and renders the rest with what it learned.  Its samples render at
+#: one light sample (its variance weighs share^2 / share = share in the image), so a small
+#: share with more recording vertices per sample: veach_mis 1.29-1.32x `path` instead of
+#: 1.15-1.18x (share 1/8, fraction 1/8), the other experiment scenes within the noise (side runs
+#: at 128 px and 512 spp)
+LEARN_SHARE = 1 / 16
 #: fraction of vertices that record statistics
-LEARN_FRACTION = 0.125
+LEARN_FRACTION = 0.25
 #: a learned p(3) below 1 must promise at least this factor less variance x cost than p(3) = 1
-#: (the estimates of small p(3) are heavy-tailed and read low more often than high)
+#: (the estimates of small p(3) are heavy-tailed and read low more often than high; above one
+#: the density grows and the estimates do not: no margin there)
 LEARN_MARGIN = 0.8
 #: learning stops once a pass changes the decisions of less than this fraction of the visits
 LEARN_SETTLED = 0.05
+#: whether the recording vertices measure the light share's squared mean between points
+#: (``record_pair``; False: the pooled variance is taken as the vertex's noise, for comparison)
+LEARN_PAIRS = True
 
 
-def allocation_variance(second, mean, mean_l, candidates=LEARNED_P, spread=1.0):
+def allocation_variance(second, mean, mean_l, candidates=LEARNED_P, sq_l=None):
     r"""Variance of a vertex's direct-light estimate for each candidate allocation c, from the
     statistics of :meth:`MIS3._learn` (per region: rows; per candidate: columns).
 
@@ -168,7 +190,10 @@ def allocation_variance(second, mean, mean_l, candidates=LEARNED_P, spread=1.0):
     understates V by 2 mu_l mu_b + (1 - 1/c) mu_l^2, which is most of V once c > 1: every
     allocation above one then looked free of variance and the cheapest of them won.  A
     non-integer c > 1 is drawn as floor(c) or ceil(c) samples (``VertexEstimator.direct``),
-    whose variances mix by the fraction of c.  Clamped at zero (the three sums are estimates),
+    whose variances mix by the fraction of c.  With ``sq_l`` (per candidate E[m_l(x; c)^2],
+    the light share's squared mean over the region's points, at least mu_l(c)^2) it replaces
+    mu_l(c)^2: the variance is then the points' noise, without the variation of the light
+    share's mean between them.  Clamped at zero (the three sums are estimates),
     plus a floor of 1e-6 of the mean second moment so that a region of zeros keeps its cost
     order."""
     second = np.asarray(second, dtype=np.float64)
@@ -176,8 +201,8 @@ def allocation_variance(second, mean, mean_l, candidates=LEARNED_P, spread=1.0):
     mean_l = np.asarray(mean_l, dtype=np.float64)
     cand = [float(x) for x in candidates]
     c = np.maximum(np.array(cand), 1.0)[None, :]
-    spread = np.asarray(spread, dtype=np.float64).reshape(-1, 1) if np.ndim(spread) else spread
-    var = np.maximum(second - spread * (mean_l ** 2 / c + (mean - mean_l) ** 2), 0.0)
+    light = mean_l ** 2 if sq_l is None else np.maximum(np.asarray(sq_l, np.float64), mean_l ** 2)
+    var = np.maximum(second - (light / c + (mean - mean_l) ** 2), 0.0)
     # a count c > 1 between integers is rounded to floor(c) or ceil(c) light samples, each
     # count's estimate unbiased: the variance is the mixture (1 - t) V(floor) + t V(ceil)
     for j, x in enumerate(cand):
@@ -241,7 +266,7 @@ class MIS3(IntegratorTemplate):
     # ---- selection=learned: the light-sample probability per region ------------------------
     def scene_warnings(self, scene):
         if self.learned:   # a new scene: learn from scratch
-            self.grid = RegionGrid(scene, stats=PATH_STATS + 5)
+            self.grid = RegionGrid(scene, stats=PAIRS + len(LEARNED_P))
             self.settled = False
             self._learn_passes = 0
         return []
@@ -328,13 +353,9 @@ class MIS3(IntegratorTemplate):
         ok = (n >= LEARN_MIN_VISITS) & (st[:, k + 2] >= LEARN_MIN_HITS)
         nn = np.where(ok, n, 1.0)[:, None]
         second, mean, mean_l = st[:, :k] / nn, st[:, k] / nn[:, 0], st[:, k + 3:PATH_STATS] / nn
-        # the squared mean over the region's points (two independent light estimates at each
-        # recording vertex) against the square of the region's mean: the share of the pooled
-        # statistics that is variation of the mean between points, not noise
-        sq = st[:, PATH_STATS + 4] / nn[:, 0]
-        spread = np.where(mean > 0, np.clip(sq / np.maximum(mean, 1e-30) ** 2, 1.0, 1e6), 1.0)
         pooled = allocation_variance(second, mean, mean_l)
-        var = allocation_variance(second, mean, mean_l, spread=spread)
+        sq_l = st[:, PAIRS:PAIRS + k] / nn if LEARN_PAIRS else None
+        var = allocation_variance(second, mean, mean_l, sq_l=sq_l)
         cost = LEARN_REST_COST + LIGHT_COST * np.array(LEARNED_P)[None, :]
         # the rest of the pixel sample: the variance and cost of the paths through the region
         # less this vertex's share at the allocation they were recorded with (its nearest
@@ -353,7 +374,8 @@ class MIS3(IntegratorTemplate):
         c_rest = np.where(have, np.maximum(c_pix - cost[0, u], 0.0), 0.0)
         j = (var + v_rest[:, None]) * (cost + c_rest[:, None])
         arg = np.argmin(j, axis=1)
-        keep_one = j[np.arange(len(arg)), arg] > LEARN_MARGIN * j[:, ONE]
+        below = np.array(LEARNED_P)[arg] < 1.0   # (the margin: see LEARN_MARGIN)
+        keep_one = below & (j[np.arange(len(arg)), arg] > LEARN_MARGIN * j[:, ONE])
         best = np.where(keep_one, 1.0, np.array(LEARNED_P, dtype=np.float32)[arg])
         table = np.full(len(old), -1.0, dtype=np.float32)
         table[live] = np.where(ok, best, -1.0)
@@ -429,11 +451,12 @@ class MIS3(IntegratorTemplate):
                               PATH_STATS + 2: cost, PATH_STATS + 3: mi.Float(1.0)}, on)
 
     def record_pair(self, scene, sel, sampler, si, bsdf, cell, beta, active):
-        """Two independent light samples at a recording vertex, for the statistics only: the
-        product of their estimates of the vertex's direct light estimates its squared mean at
-        this point (the pooled statistics' variation between points, told apart from noise)."""
+        """Two independent light samples at a recording vertex, for the statistics only: per
+        candidate c, the product of their estimates of the light technique's share at this
+        point, m_l(x; c) = int f L_e w_l(c) (w_l(c) = c p_l / (c p_l + p_b)), estimates its
+        squared mean E_x[m_l(x; c)^2] over the region's points."""
         idx, record = cell
-        if record is None:
+        if record is None or not LEARN_PAIRS:
             return
         act = active & record
         if not is_jit() and not act:
@@ -442,9 +465,12 @@ class MIS3(IntegratorTemplate):
         z = []
         for _ in range(2):
             ls = VertexEstimator.light_sample(scene, sel, sampler, si, act, bsdf, ctx)
-            f = bsdf.eval(ctx, si, si.to_local(ls.ds.d), ls.visible)
-            z.append(dr.select(ls.visible, luminance(beta * f * ls.weight), 0.0))
-        self.grid.add(idx, {PATH_STATS + 4: z[0] * z[1]}, act)
+            f, pdf_b = bsdf.eval_pdf(ctx, si, si.to_local(ls.ds.d), ls.visible)
+            v = dr.select(ls.visible, luminance(beta * f * ls.weight), 0.0)
+            z.append([v * dr.select(ls.ds.delta, 1.0, safe_div(p * ls.ds.pdf,
+                                                                p * ls.ds.pdf + pdf_b))
+                      for p in LEARNED_P])
+        self.grid.add(idx, {PAIRS + j: z[0][j] * z[1][j] for j in range(len(LEARNED_P))}, act)
 
     def _learn(self, cell, value, pdf_l, p3, q_b, delta, active, count=1.0):
         # M(p) = int I^2 / (p p_l + q_b): each sample adds I^2 / ((p p_l + q_b) Q0), Q0 the
