@@ -467,9 +467,7 @@ class MIS3(IntegratorTemplate):
             ls = VertexEstimator.light_sample(scene, sel, sampler, si, act, bsdf, ctx)
             f, pdf_b = bsdf.eval_pdf(ctx, si, si.to_local(ls.ds.d), ls.visible)
             v = dr.select(ls.visible, luminance(beta * f * ls.weight), 0.0)
-            z.append([v * dr.select(ls.ds.delta, 1.0, safe_div(p * ls.ds.pdf,
-                                                                p * ls.ds.pdf + pdf_b))
-                      for p in LEARNED_P])
+            z.append([v * w for w in self._light_shares(ls.ds.pdf, pdf_b, ls.ds.delta)])
         self.grid.add(idx, {PAIRS + j: z[0][j] * z[1][j] for j in range(len(LEARNED_P))}, act)
 
     def _learn(self, cell, value, pdf_l, p3, q_b, delta, active, count=1.0):
@@ -481,10 +479,15 @@ class MIS3(IntegratorTemplate):
         vals = [value * value * inv_q0 * dr.select(delta, 1.0 / p, safe_div(1.0, p * pdf_l + q_b))
                 for p in LEARNED_P]
         vals += [value * inv_q0, mi.Float(0.0), mi.Float(1.0)]   # mean, (visits), hits
-        # the light technique's share mu_l(p) = int I w_l(p), w_l = p p_l / (p p_l + q_b)
-        vals += [value * inv_q0 * dr.select(delta, 1.0, safe_div(p * pdf_l, p * pdf_l + q_b))
-                 for p in LEARNED_P]
+        # the light technique's share mu_l(p) = int I w_l(p)
+        vals += [value * inv_q0 * w for w in self._light_shares(pdf_l, q_b, delta)]
         self.grid.add(cell, vals, active & (value > 0))
+
+    @staticmethod
+    def _light_shares(pdf_l, q_b, delta):
+        """Per candidate p, the light technique's balance weight w_l(p) = p p_l / (p p_l + q_b)
+        of a direction (1 for a delta light): its share of what the vertex estimates there."""
+        return [dr.select(delta, 1.0, safe_div(p * pdf_l, p * pdf_l + q_b)) for p in LEARNED_P]
 
     def technique_probs(self, bsdf, si, has_lights: bool, active):
         """(p1, p2, p3) at this vertex, summing to one (zero where nothing is there)."""
