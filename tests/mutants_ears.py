@@ -78,4 +78,19 @@ MUTANTS = [
     ("ears-pixel-with-sensor-weight", _S,
      "            lum = luminance(L)\n", "            lum = luminance(L * weight)\n",
      ["test_variants.py::test_spectral_learned_roulette_traces_as_in_rgb"]),
+    # the plain fallback's estimate of the throughput rule: the rule applied to the learned
+    # throughput instead of the classic one (cost read 3-4 % high), the second moment without
+    # its cross terms between a path's vertices
+    ("ears-classic-estimate-learned-beta", _S,
+     "q_c = ears.classic_survival(beta * (Q * inv_p), eta, depth, pre)",
+     "q_c = ears.classic_survival(beta, eta, depth, pre)",
+     ["test_ears.py::test_throughput_rule_estimated_on_the_learned_paths"]),
+    ("ears-classic-estimate-no-cross-terms", _S,
+     "Y += lc * (bare * Q + 2.0 * S)", "Y += lc * bare * Q",
+     ["test_ears.py::test_throughput_rule_estimated_on_the_learned_paths"]),
+    # the plain passes without roulette (rr=none): unbiased, but not the throughput rule the
+    # learned one was compared with (the passes then differ from nee_path's)
+    ("ears-plain-without-roulette", "integrators/plugins/nee_path.py",
+     'roulette.Roulette.from_params(dict(self.params, rr="throughput")))',
+     'roulette.Roulette.from_params(dict(self.params, rr="none")))', _T),
 ]

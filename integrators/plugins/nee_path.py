@@ -29,7 +29,10 @@ The lecture's estimator with each degree of freedom of its last slide as a param
   default), deeper splits as new lanes of a wavefront (:mod:`integrators.sampling.splitting`),
   at most ``max_lanes`` alive at once.  ``render`` is then this integrator's own (JIT variants
   only), the learned state is kept per scene across passes, and ``stats`` counts the rays it
-  traced.  ``split`` must be 1 then.
+  traced.  ``split`` must be 1 then.  Every learned roulette pass also estimates, on its own
+  paths, the throughput rule's variance and cost; where the learned roulette is not worth 1.3x
+  the plain kernel's time per unit of work, the render goes on with ``nee_path``'s own kernel
+  and the throughput rule (``stats['mode']`` = ``plain``, rays not counted).
 
 With ``heuristic=power, light_selection=uniform, rr=throughput, light_samples=1, split=1`` this is
 the estimator of Mitsuba's built-in ``path`` (tested statistically on the Cornell box).
@@ -92,6 +95,11 @@ class NEEPath(IntegratorTemplate):
         rr = dict(self.params, rr="none") if self.adaptive else self.params
         self.vertex = VertexEstimator(self.heur, self.light_samples, 1,
                                       roulette.Roulette.from_params(rr))
+        #: rr=adaptive's ``plain`` passes (the learned roulette predicted not to pay): the
+        #: throughput rule in Mitsuba's megakernel
+        self.plain_vertex = VertexEstimator(
+            self.heur, self.light_samples, 1,
+            roulette.Roulette.from_params(dict(self.params, rr="throughput")))
         self.paths_per_sample = self.split
         self.ears = None
         #: tests: a rule (sampler, active) -> n replacing the learned n at every vertex
@@ -99,6 +107,7 @@ class NEEPath(IntegratorTemplate):
         self.forced_factor = None
         #: what the last rr=adaptive render traced (rays, camera samples, lanes)
         self.stats = {}
+        self._plain_call = False
         if self.adaptive:
             if self.split != 1:
                 raise ParameterError(f"nee_path: parameter 'split' = {self.split!r} is invalid "
@@ -130,6 +139,17 @@ class NEEPath(IntegratorTemplate):
         self.ears.forced = self.forced_factor
         if self.forced_factor is not None:      # (tests: factors given, no mode to learn)
             self.ears.mode = self.ears.next_mode()
+        if self.ears.mode == "plain":       # (Mitsuba's kernel: no rays counted)
+            # (Mitsuba's render calls this one again, once: a pass counted at the outer call)
+            outer = not self._plain_call
+            if outer:
+                self.ears.passes += 1
+                self.stats = dict(mode="plain", max_lanes=0)
+            self._plain_call = True
+            try:
+                return self.base_render(scene, sensor, seed, spp, develop, evaluate)
+            finally:
+                self._plain_call = not outer
         wave = splitting.Wavefront(self, self.ears, self.max_lanes)
         mode = self.ears.mode
         # (the pass's time: only the measured policy uses it)
@@ -145,8 +165,8 @@ class NEEPath(IntegratorTemplate):
     @record_once
     @dr.syntax
     def sample(self, scene, sampler, ray, medium=None, active=True):
-        """One camera sample (rr=adaptive renders through :meth:`render` instead; called
-        directly, it uses no roulette)."""
+        """One camera sample (rr=adaptive renders through :meth:`render` instead, except in its
+        ``plain`` passes, which come here: the throughput rule)."""
         active = mi.Bool(active)
         ray = mi.Ray3f(ray)
         sel = self.prepare(scene)
@@ -167,4 +187,5 @@ class NEEPath(IntegratorTemplate):
     def reflected(self, scene, sampler, sel, ray, si, active):
         """One path's estimate of the light reflected at the first hit ``si`` (its emission
         excluded): the shared per-vertex estimator at every vertex."""
-        return self.vertex.path(scene, sampler, sel, ray, si, active, self.max_depth)
+        vertex = self.plain_vertex if self.adaptive else self.vertex
+        return vertex.path(scene, sampler, sel, ray, si, active, self.max_depth)

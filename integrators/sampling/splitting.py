@@ -68,8 +68,10 @@ the cells with copies only, 1.5-3 ms a pass instead of 5) 0.72/0.71/0.76x and 1.
 
 **Modes and the policy.**  A pass runs in one of ``MODES``: ``classic`` while nothing is
 learned (the throughput rule, records kept), ``roulette`` (the learned n clamped to one:
-survival n where n < 1, no copies) and ``split`` (the learned n, splitting at the first
-``split_depth`` vertices).  All three run every path of a batch in one kernel
+survival n where n < 1, no copies), ``split`` (the learned n, splitting at the first
+``split_depth`` vertices) and ``plain`` (the throughput rule in the integrator's own kernel,
+once a roulette pass estimated that the learned roulette does not pay; below).  The first three
+run every path of a batch in one kernel
 (:meth:`Wavefront.roulette_kernel`, Mitsuba's megakernel: the light samples' BSDF sample is
 reused for the continuation, rays are counted per lane) when only the first hit may split (the
 default ``split_depth`` 1); deeper splitting replicates lanes (below).  ``split_policy``
@@ -87,6 +89,38 @@ difference one pass measures poorly.  The splitting factor scaled by 0.5 or 0.25
 roulette factor as is) did not give a policy better everywhere either (always, scale 1 / 0.5 /
 0.25: indirect room 1.34 / 1.32 / 1.36, glossy 0.99 / 1.03 / 1.04, ajar door 1.04 / 0.88 /
 0.87, glass shade 0.50 / 0.56 / 0.66, roulette only 1.38, 1.04, 0.85, 0.74).
+
+**The plain fallback: the throughput rule estimated on the learned paths.**  Where the learned
+roulette hardly differs from the throughput rule (direct light and short paths: Veach's MIS
+scene, where it traces the continuations the rule traces) or gains less than its kernel costs
+(the records, the factors' lookups and the pixel statistics: ``KERNEL_COST``, 1.3x the plain
+kernel's time per unit of work), learning loses.  So every roulette pass of the default policy
+also estimates, on its own paths, what the throughput rule would have cost and how noisy it
+would have been, and :meth:`EARS.compare` takes the ratio of the efficiencies.  Below
+``KERNEL_COST`` the rest of the render runs ``plain``: the integrator's own kernel (Mitsuba's
+megakernel, ``nee_path`` with the throughput rule, no records), for good.  The estimate is
+exact in expectation, not a first-order model.  Along a path let q_a be the learned survival
+at vertex a and r_a the rule's (applied to the continuation's BSDF sample and to the
+*classic* throughput, beta Q / P), P_v = prod_{a<v} 1/q_a and Q_v = prod_{a<v} 1/r_a over the
+decisions before vertex v, and c_v the luminance a path adds at v without roulette weights (the
+pass adds P_v c_v).  The learned pass reaches v with probability 1/P_v and the rule with
+1/Q_v, so the rule's expected cost is E[sum_v k_v P_v / Q_v] (k_v the rays traced to and at v).
+Its estimate of a camera sample is X = sum_v B_v c_v with B_v = prod_{a<v} s_a / r_a
+(s_a the survival indicators), and E[B_u B_v | path] = Q_u for u <= v (the shared decisions
+give E[s^2/r^2] = 1/r, the others 1), so its second moment is E[sum_v c_v P_v (c_v Q_v + 2
+sum_{u<v} c_u Q_u)], summed per lane in the kernel with a running S = sum_{u<v} c_u Q_u.
+Every expectation is over the learned pass's paths, unbiased for any learned survivals above
+zero (``rr_min``); the test compares both with classic passes (Welch t, and a mutant without
+the cross terms reads the second moment a third low).  Measured (96 px, 512 spp, one roulette
+pass after the classic one; estimated efficiency of the learned roulette against the rule, in
+the cost model's units): dark scene with a bright light 2.4, indirect room 1.9, heavy mesh
+1.5: learned; glossy scene 1.27, lamp in a glass shade 1.22, ``ajar_door`` 1.16,
+``specular_box`` 1.14, caustic 1.11, the Cornell box 1.11 (max_depth 8), ``many_lights``
+1.04, ``sharp_glossy`` 1.03, ``small_light`` 1.01, Veach's MIS scene 1.001: plain.  Tried
+first and not kept: a first-order model (each vertex's change alone, w^2 M (1/r - 1/q) from the
+cells' moments): it read the rule's cost 2.3x too far from the learned one where paths are long
+(each vertex's copy cost holds its subtree's) and the variance change with the wrong sign in the
+Cornell box (1.4x predicted, 1.0x measured).
 
 **The first hit's copies in the megakernel.**  With ``split_depth`` 1 a lane makes floor(n + u)
 copies of its first hit's continuation and runs them one after another: when a copy's path
@@ -203,7 +237,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ..common import depth_limit, emitted, lnot, luminance, record_once, safe_div
+from ..common import depth_limit, emitted, lnot, luminance, record_once, safe_div, widen
 from .learning import RegionGrid
 from .roulette import roulette
 
@@ -232,8 +266,16 @@ CAMERA_COST = 2.0
 #: how a pass runs: ``classic`` (nothing learned, or measured best: the throughput rule at every
 #: vertex, records kept), ``roulette`` (the learned factors clamped to one: roulette only, every
 #: path in one kernel), ``split`` (the learned factors, splitting by replication at the first
-#: ``split_depth`` vertices).  The first and second run in Wavefront.roulette_kernel.
-MODES = ("classic", "roulette", "split")
+#: ``split_depth`` vertices), ``plain`` (the learned roulette measured not to pay for its
+#: kernel, :meth:`EARS.compare`: the integrator's own kernel with the throughput rule, no
+#: records, for the rest of the render).  The first and second run in
+#: Wavefront.roulette_kernel.
+MODES = ("classic", "roulette", "split", "plain")
+#: time per unit of work of a learning roulette pass relative to the plain kernel's (Mitsuba's
+#: megakernel, the throughput rule): its records, the factors' lookups and the pixel statistics
+#: (Veach's MIS scene, 96 px, 256 spp: 108.6 ms against 86.3 ms for 0.95x the rays).  A
+#: gain below it does not pay for learning (:meth:`EARS.compare`)
+KERNEL_COST = 1.3
 #: the modes the ``measured`` policy chooses between (``classic`` runs only while nothing is
 #: learned: measured against the learned modes, one early pass's heavy-tailed variance made it
 #: the choice in the indirect room, at 0.76x the efficiency of roulette)
@@ -310,6 +352,16 @@ class EARS:
         self.rr_min, self.split_max, self.rr_depth = float(rr_min), int(split_max), int(rr_depth)
         self.f_var = mi.Float(np.full(self.grid.size, -1.0, np.float32))
         self.f_var_coarse = mi.Float(np.full(self.coarse.size, -1.0, np.float32))
+        #: a roulette pass's estimate of the throughput rule's cost (``Wavefront.kernel_batch``)
+        self.pass_cost_c = 0.0
+        #: the learned roulette's efficiency relative to the throughput rule's, as estimated
+        #: from the last roulette pass (:meth:`compare`)
+        self.gain = None
+        #: the throughput rule's relative variance and cost relative to the learned roulette's
+        self.change = None
+        #: set once the prediction found the learned roulette not worth its kernel: the passes
+        #: then run ``plain`` (the integrator's own kernel, the throughput rule, no records)
+        self.plain = False
         #: each fine cell's coarse cell (the last record written there): the parent its moments
         #: are shrunk towards
         self.parent = dr.zeros(mi.UInt32, self.grid.size)
@@ -346,6 +398,8 @@ class EARS:
         self.pass_s1 = dr.zeros(mi.Float, self.shape[0] * self.shape[1])
         self.pass_s2 = dr.zeros(mi.Float, self.shape[0] * self.shape[1])
         self.pass_cost = 0.0
+        self.pass_s2c = dr.zeros(mi.Float, self.shape[0] * self.shape[1])
+        self.pass_cost_c = 0.0
 
     # ---- in the kernel -------------------------------------------------------------------
     def factor(self, si, beta, eta, depth, pixel, sampler, active, split=None):
@@ -393,6 +447,16 @@ class EARS:
         u = sampler.next_1d(active)
         return roulette("throughput", self.rr_depth, 0.0, beta, eta,
                         dr.select(classic, depth, 0), u, active)
+
+    def classic_survival(self, beta, eta, depth, pre):
+        """The throughput rule's survival for the continuation from a vertex reached with
+        ``beta``, ``eta`` at ``depth``, applied after its BSDF sample ``pre`` (sample, weight)
+        as in a classic pass (:meth:`throughput_roulette`): min(max(beta w) eta'^2, 0.95) from
+        ``rr_depth`` on, else 1."""
+        bs, wt = pre
+        q = dr.minimum(dr.max(mi.unpolarized_spectrum(beta * wt), axis=0)
+                       * dr.square(eta * bs.eta), 0.95)
+        return dr.select(depth + 1 >= self.rr_depth, q, 1.0)
 
     # ---- between passes ------------------------------------------------------------------
     def learn(self, spp: int, seconds: float = 0.0):
@@ -443,6 +507,11 @@ class EARS:
         self.inv_pixel = mi.Float((1.0 / np.sqrt(ip2)).astype(np.float32))
         self.learned = ok_any
         self.v_rel, self.cost = v_rel, cost
+        if self.mode == "roulette" and self.pass_cost_c > 0 and v_rel > 0:
+            s2c = np.array(self.pass_s2c, np.float64)
+            v_c = float(np.mean(np.maximum(s2c / spp - mean ** 2, 0.0) * n_all / (n_all - 1)
+                                / ip2))
+            self.compare(v_rel, cost, v_c, self.pass_cost_c / max(s1.size * spp, 1))
         # each mode's last pass, its efficiency measured against the current pixel means (the
         # same denominators for every mode: a pass measured against the noisier means of an
         # early pass would read less variance)
@@ -456,6 +525,17 @@ class EARS:
             self.measured[m] = 1.0 / (v_m * t_m) if v_m > 0 and t_m > 0 else 0.0
         self.mode = self.next_mode()
 
+    def compare(self, v: float, c: float, v_c: float, c_c: float):
+        """The learned roulette's efficiency relative to the throughput rule's, (v_c c_c) /
+        (v c), from a roulette pass: its relative variance ``v`` and cost ``c`` per camera sample
+        and the throughput rule's, ``v_c`` and ``c_c``, estimated on the same paths
+        (:meth:`Wavefront.roulette_kernel`).  Below ``KERNEL_COST`` the learned roulette does not
+        pay for its kernel: the rest of the render runs ``plain`` (policy ``never`` only)."""
+        self.gain = v_c * c_c / (v * c)
+        self.change = (v_c / v, c_c / c)
+        if self.policy == "never" and self.gain < KERNEL_COST:
+            self.plain = True
+
     def next_mode(self) -> str:
         """The mode of the next pass (see ``MODES``).  Nothing learned: ``classic``.  Policy
         ``never`` / ``always``: ``roulette`` / ``split``.  ``measured``: each learned mode once
@@ -463,6 +543,8 @@ class EARS:
         renewed by every pass it runs)."""
         if self.forced is not None:
             return "roulette" if self.policy == "never" else "split"
+        if self.plain:
+            return "plain"
         if not self.learned:
             return "classic"
         if self.policy != "measured":
@@ -578,6 +660,8 @@ class Wavefront:
                           max_lanes=0, bounces=0, batches=0, capped_bounces=0)
         #: the megakernel's sums of work and rays over the pass's batches (kernel_batch)
         self._totals = None
+        #: a roulette pass's estimate of the throughput rule's cost, summed (kernel_batch)
+        self._pred = None
 
     # ---- camera samples ----------------------------------------------------------------------
     @staticmethod
@@ -649,7 +733,8 @@ class Wavefront:
             lum = luminance(L)
             dr.scatter_reduce(dr.ReduceOp.Add, self.ears.pass_s1, lum, pixel, mode=DIRECT)
             dr.scatter_reduce(dr.ReduceOp.Add, self.ears.pass_s2, lum * lum, pixel, mode=DIRECT)
-            dr.eval(block.tensor(), self.ears.pass_s1, self.ears.pass_s2, self._totals)
+            dr.eval(block.tensor(), self.ears.pass_s1, self.ears.pass_s2, self._totals,
+                    self._pred, self.ears.pass_s2c)
             self.stats["batches"] += 1
             self.stats["camera_samples"] += n
         self.kernel_totals()
@@ -662,8 +747,14 @@ class Wavefront:
         sel = integ.prepare(scene)
         n_cam = dr.width(ray)
         learn = ears.learning and ears.forced is None
-        L, valid, cost, traced = self.roulette_kernel(scene, sel, sampler, ray, pixel,
-                                                      depth_limit(integ.max_depth), learn)
+        L, valid, cost, traced, pred = self.roulette_kernel(
+            scene, sel, sampler, ray, pixel, depth_limit(integ.max_depth), learn)
+        if pred is not None:    # (the throughput rule's second moment and cost, estimated)
+            dr.scatter_reduce(dr.ReduceOp.Add, ears.pass_s2c, pred[0], pixel, mode=DIRECT)
+            if self._pred is None:
+                self._pred = dr.zeros(mi.Float, 1)
+            dr.scatter_reduce(dr.ReduceOp.Add, self._pred, pred[1], mi.UInt32(0), mode=FLUSH)
+            ears.pass_cost_c += CAMERA_COST * dr.width(ray)
         # the batch's work and rays summed in the same kernel (one expanded element per
         # thread), read once the pass is done (:meth:`kernel_totals`): no reduction kernel and
         # no host synchronisation per batch; the caller's splat goes with the loop too
@@ -683,6 +774,9 @@ class Wavefront:
             return
         work, rays = float(self._totals[0][0]), int(self._totals[1][0])
         self._totals = None
+        if self._pred is not None:
+            self.ears.pass_cost_c += float(self._pred[0])
+            self._pred = None
         self.stats["continuation_rays"] += rays
         self.stats["shadow_rays"] += int(round((work - rays) / SHADOW_COST))
         self.ears.pass_cost += work
@@ -783,8 +877,26 @@ class Wavefront:
         L += L_nee
         beta, eta, depth = mi.Spectrum(1.0), mi.Float(1.0), mi.UInt32(0)
         n, classic, cell = ears.factor(si, beta, eta, depth, pixel, sampler, alive)
-        if not self.copies:
+        # (without copies, a roulette or classic pass, the loop has no restart code, and
+        # without learning no records: 2-3 % of the kernel's time on Veach's MIS scene)
+        restarts = self.copies
+        if not restarts:
             n = dr.minimum(n, 1.0)
+        # a roulette pass that learns also estimates, on its own paths, the second moment and
+        # the cost of the throughput rule (see the module docstring): per lane, Y (its second
+        # moment), K (its cost), S, and the products 1/P of the learned survivals and Q of the
+        # inverse classic ones
+        predict = learn and ears.mode == "roulette"
+        # (as wide as the loop: unused, they stay in its state, see record_once)
+        zero, one = widen(mi.Float(0.0), alive), widen(mi.Float(1.0), alive)
+        Y, S, K, inv_p, Q = zero, mi.Float(zero), mi.Float(zero), one, mi.Float(one)
+        if predict:
+            c0 = luminance(L)
+            Y, S, K = c0 * c0, mi.Float(c0), mi.Float(cost)
+            off = alive & lnot(classic)
+            inv_p = dr.select(off, n, 1.0)
+            q_c = ears.classic_survival(beta, eta, depth, pre)
+            Q = dr.select(off & (q_c > 0), dr.rcp(q_c), 1.0)
         # floor(n + u) copies of the first hit's continuation, each weighted 1/n (n < 1:
         # roulette), run one after another in the lane
         copies = mi.UInt32(dr.floor(n + sampler.next_1d()))
@@ -812,45 +924,65 @@ class Wavefront:
         while dr.hint(active, label="ears kernel",
                       exclude=[limit, pixel, si0, classic0, w0, blum0]):
             _, _, si_n, beta, eta, depth, alive, c, k, pre, act = self.continuation(
-                scene, sel, sampler, si, beta, eta, depth, classic, limit, active, pre, fresh)
+                scene, sel, sampler, si, beta, eta, depth, classic, limit, active, pre,
+                fresh if restarts else None)
             L += c
             cost += k
             traced += dr.select(act, 1, 0)
-            lc = luminance(c)
-            S0 += lc
-            R0 += k
-            d1 = dr.select(first, depth, 0)
-            recs = records_add(recs, d1, lc, k, 1)
             n, classic, cell = ears.factor(si_n, beta, eta, depth, pixel, sampler, alive,
                                            False)
             q = dr.minimum(n, 1.0)
+            if dr.hint(predict, mode="scalar"):
+                lc = luminance(c)
+                bare = lc * inv_p
+                Y += lc * (bare * Q + 2.0 * S)
+                S += bare * Q
+                K += k * safe_div(1.0, inv_p * Q)
+                off = alive & lnot(classic)
+                # (the throughput rule sees the classic weights: beta Q / P)
+                q_c = ears.classic_survival(beta * (Q * inv_p), eta, depth, pre)
+                inv_p *= dr.select(off, q, 1.0)
+                Q *= dr.select(off & (q_c > 0), dr.rcp(q_c), 1.0)
             alive &= sampler.next_1d() < q
             beta *= copy_weight(q)
-            blum = dr.select(alive, luminance(beta), 0.0)
-            recs = records_start(recs, d1, cell, blum, 1)
-            # a copy ends: its L_r to record 0's sums; the next copy restarts at the first hit
             end = active & lnot(alive)
-            L_r = safe_div(S0, blum0)
-            t1 += dr.select(end, L_r, 0.0)
-            t2 += dr.select(end, L_r * L_r, 0.0)
-            tn += dr.select(end, 1.0, 0.0)
-            tR += dr.select(end, R0, 0.0)
-            S0 = dr.select(end, 0.0, S0)
-            R0 = dr.select(end, 0.0, R0)
-            restart = end & (left > 0)
-            left -= dr.select(restart, 1, 0)
-            first &= lnot(end)
-            fresh = restart
-            si = dr.select(restart, si0, si_n)
-            beta = dr.select(restart, mi.Spectrum(w0), beta)
-            eta = dr.select(restart, 1.0, eta)
-            depth = dr.select(restart, 0, depth)
-            classic = dr.select(restart, classic0, classic)
-            active = alive | restart
+            if dr.hint(learn, mode="scalar"):
+                lc = luminance(c)
+                S0 += lc
+                R0 += k
+                d1 = dr.select(first, depth, 0)
+                recs = records_add(recs, d1, lc, k, 1)
+                blum = dr.select(alive, luminance(beta), 0.0)
+                recs = records_start(recs, d1, cell, blum, 1)
+                # a copy ends: its L_r to record 0's sums
+                L_r = safe_div(S0, blum0)
+                t1 += dr.select(end, L_r, 0.0)
+                t2 += dr.select(end, L_r * L_r, 0.0)
+                tn += dr.select(end, 1.0, 0.0)
+                tR += dr.select(end, R0, 0.0)
+                S0 = dr.select(end, 0.0, S0)
+                R0 = dr.select(end, 0.0, R0)
+                first &= lnot(end)
+            si = si_n
+            active = mi.Bool(alive)
+            if dr.hint(restarts, mode="scalar"):
+                # the next copy restarts at the first hit
+                restart = end & (left > 0)
+                left -= dr.select(restart, 1, 0)
+                fresh = restart
+                si = dr.select(restart, si0, si_n)
+                beta = dr.select(restart, mi.Spectrum(w0), beta)
+                eta = dr.select(restart, 1.0, eta)
+                depth = dr.select(restart, 0, depth)
+                classic = dr.select(restart, classic0, classic)
+                active = alive | restart
         if learn:
             records_flush(ears, recs, FLUSH)
             record_sums(ears, cell_first, [t2, t1, tn, tR], tn > 0, FLUSH)
-        return L, valid, cost, traced
+        pred = None
+        if predict:
+            pred = (Y, K)
+        return L, valid, cost, traced, pred
 
     @record_once
     @dr.syntax
