@@ -352,6 +352,9 @@ def test_state_lives_across_passes_of_progressive_render():
     assert acc.spp == 64 and acc.passes > 1 and np.isfinite(acc.mean()).all()
     it = scene.integrator()
     assert it.ears.passes == acc.passes and it.ears.learned
+    notes = acc.run_record().notes      # (the run record says how the passes ran)
+    assert notes["rr"] == "adaptive" and notes["passes"] == acc.passes, notes
+    assert notes["mode"] in splitting.MODES and "estimated_gain_over_throughput_rule" in notes
     ref = np.array(mi.render(scene, integrator=mi.load_dict({"type": "path"}), spp=512))
     assert abs(acc.mean().mean() / ref.mean() - 1) < 0.05      # about 10 standard errors
     acc = progressive.render(scene, time_budget=1.0, seed=1000)

@@ -162,6 +162,18 @@ class NEEPath(IntegratorTemplate):
         film.put_block(block)
         return film.develop() if develop else block.tensor()
 
+    def run_notes(self) -> dict:
+        """For the run record (rr=adaptive): the passes, the mode they now run in and the
+        learned roulette's efficiency against the throughput rule as a roulette pass estimated
+        it (what sent the render to the plain kernel, or kept it learning)."""
+        if not self.adaptive or self.ears is None:
+            return {}
+        e = self.ears
+        notes = {"rr": "adaptive", "passes": e.passes, "mode": e.mode}
+        if e.gain is not None:
+            notes["estimated_gain_over_throughput_rule"] = round(float(e.gain), 3)
+        return notes
+
     @record_once
     @dr.syntax
     def sample(self, scene, sampler, ray, medium=None, active=True):
