@@ -142,6 +142,8 @@ def test_spectral_variant_same_image_as_path():
 _EARS_SPECTRAL_SCRIPT = r"""
 import mitsuba as mi
 import integrators
+from integrators.sampling import splitting
+splitting.KERNEL_COST = 0.0     # (the learned roulette's scale is compared: no plain fallback)
 for v in ("llvm_ad_spectral", "llvm_ad_rgb"):
     integrators.set_variant(v)
     scene = mi.load_file(%r, res="16")

@@ -911,12 +911,15 @@ class Wavefront:
         # over its finished copies of L_r, L_r^2, copies, cost; records of deeper vertices:
         # (fine cell, coarse cell, luminance of the copy's beta, sum of its contributions, sum
         # of their cost), of the first copy only
-        S0, R0 = mi.Float(0.0), mi.Float(0.0)
-        t1, t2, tn, tR = mi.Float(0.0), mi.Float(0.0), mi.Float(0.0), mi.Float(0.0)
-        recs = [(mi.UInt32(0), mi.UInt32(0), mi.Float(0.0), mi.Float(0.0), mi.Float(0.0))
+        # (all as wide as the loop: in a pass without records or copies they stay unchanged in
+        # its state, and a narrow one would have it recorded twice, see record_once)
+        fz, uz = widen(mi.Float(0.0), alive), widen(mi.UInt32(0), alive)
+        S0, R0 = fz, mi.Float(fz)
+        t1, t2, tn, tR = mi.Float(fz), mi.Float(fz), mi.Float(fz), mi.Float(fz)
+        recs = [(mi.UInt32(uz), mi.UInt32(uz), mi.Float(fz), mi.Float(fz), mi.Float(fz))
                 for _ in range(LEARN_DEPTH - 1)]
-        first = mi.Bool(True)
-        fresh = mi.Bool(False)
+        first = widen(mi.Bool(True), alive)
+        fresh = widen(mi.Bool(False), alive)
         active = mi.Bool(alive)
         # (counted per lane: an atomic counter shared by all lanes cost a tenth of the kernel)
         traced = mi.UInt32(0)
