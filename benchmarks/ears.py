@@ -197,7 +197,9 @@ def table(results, budgets, command) -> str:
           "Efficiency = 1 / (relMSE x seconds), relative to `nee_path` with throughput "
           "roulette at the same budget (higher is better); every render a fresh integrator, "
           "its budget in doubling passes, learning in the time.  `rays/sample`: rays traced "
-          "per camera sample by `rr=adaptive` (closest-hit + shadow).", ""]
+          "per camera sample by `rr=adaptive` (closest-hit + shadow) in its own kernel's "
+          "passes (the plain passes after a fallback run `nee_path`'s kernel and are not "
+          "counted).", ""]
     # (the methods that ran, in METHODS's order: the header matches the cells)
     present = [m for m in METHODS if any(m in r["methods"] for r in results.values())]
     for m in present:
