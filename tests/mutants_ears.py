@@ -42,8 +42,8 @@ MUTANTS = [
     ("ears-kernel-first-hit-roulette-uncompensated", _S,
      "        beta *= w0\n", "", _T),
     ("ears-kernel-roulette-uncompensated", _S,
-     "            beta *= copy_weight(q)\n            blum =",
-     "            blum =", _T),
+     "            beta *= copy_weight(q)\n            end = active & lnot(alive)",
+     "            end = active & lnot(alive)", _T),
     # the copies of a split vertex start the tail without a BSDF sample of their own (they
     # would take the zeros the tail starts with, or, had it been kept, their parent's)
     ("ears-tail-copies-share-sample", _S,
