@@ -82,8 +82,14 @@ MUTANTS = [
     # throughput instead of the classic one (cost read 3-4 % high), the second moment without
     # its cross terms between a path's vertices
     ("ears-classic-estimate-learned-beta", _S,
-     "q_c = ears.classic_survival(beta * (Q * inv_p), eta, depth, pre)",
-     "q_c = ears.classic_survival(beta, eta, depth, pre)",
+     "r = self.classic_survival(beta * (Q * inv_p), eta, depth, pre)",
+     "r = self.classic_survival(beta, eta, depth, pre)",
+     ["test_ears.py::test_throughput_rule_estimated_on_the_learned_paths"]),
+    # ... or, at the vertices that keep the rule in the pass (glass, mirrors, nothing learned),
+    # the pass's own roulette taken for the rule's (the review's find: specular_box)
+    ("ears-classic-estimate-classic-vertex-shared", _S,
+     "ok = active & (q_pass > 0) & (r > 0)",
+     "ok = active & (q_pass > 0) & (r > 0) & lnot(classic)",
      ["test_ears.py::test_throughput_rule_estimated_on_the_learned_paths"]),
     ("ears-classic-estimate-no-cross-terms", _S,
      "Y += lc * (bare * Q + 2.0 * S)", "Y += lc * bare * Q",
