@@ -201,7 +201,7 @@ classic mode in the same kernel, records kept: 1.16x ``nee_path``'s time at equa
 constant lifts it without losing elsewhere (swept before the shrinkage: copies per cell 256 /
 2048, ``RR_MARGIN`` 1 / 1.4 / 4, ``DECAY`` 0.8, ``LEARN_DEPTH`` 1 / 3; ``LEARN_DEPTH`` 1 gives
 ``glass_shade`` 0.84x and the indirect room 1.01x).  There the render now finds this itself
-and goes on plain (above): 0.95-1.01x.  Tried and
+and goes on plain (above): 0.90-1.01x.  Tried and
 not kept: path regeneration in the one-kernel pass (a lane whose path ends takes the next camera
 sample from an atomic counter: with learning frozen 0.92x the roulette pass's time, but 1.09x
 the classic pass's; with the records flushed inside the loop, learning: 1.13x in the indirect
