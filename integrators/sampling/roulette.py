@@ -29,6 +29,13 @@ RR_PARAMS = (
 )
 
 
+def throughput_survival(beta, eta):
+    """The throughput rule's survival probability, min(max(beta) eta^2, 0.95)."""
+    beta_max = dr.max(mi.unpolarized_spectrum(beta), axis=0)
+    q = dr.minimum(beta_max * dr.square(eta), 0.95)
+    return q
+
+
 def roulette(mode: str, rr_depth: int, rr_prob: float, beta, eta, depth, u, active):
     """Russian roulette of the given mode; returns (beta, active).  Unbiased: survivors are
     divided by their survival probability."""
@@ -39,7 +46,7 @@ def roulette(mode: str, rr_depth: int, rr_prob: float, beta, eta, depth, u, acti
     if mode == "fixed":
         q = mi.Float(1.0 - rr_prob)
     else:
-        q = dr.minimum(beta_max * dr.square(eta), 0.95)
+        q = throughput_survival(beta, eta)
     rr_active = depth >= rr_depth
     beta = dr.select(rr_active, beta * dr.rcp(dr.select(q > 0, q, 1.0)), beta)
     return beta, active & (lnot(rr_active) | (u < q))

@@ -249,7 +249,7 @@ import numpy as np
 
 from ..common import depth_limit, emitted, lnot, luminance, record_once, safe_div, widen
 from .learning import RegionGrid
-from .roulette import roulette
+from .roulette import roulette, throughput_survival
 
 #: bounces whose vertices keep records (statistics of L_r and cost per region); one more
 #: bounce is replicated, the rest runs in the tail kernel
@@ -367,8 +367,6 @@ class EARS:
         #: the learned roulette's efficiency relative to the throughput rule's, as estimated
         #: from the last roulette pass (:meth:`compare`)
         self.gain = None
-        #: the throughput rule's relative variance and cost relative to the learned roulette's
-        self.change = None
         #: set once the prediction found the learned roulette not worth its kernel: the passes
         #: then run ``plain`` (the integrator's own kernel, the throughput rule, no records)
         self.plain = False
@@ -464,8 +462,7 @@ class EARS:
         as in a classic pass (:meth:`throughput_roulette`): min(max(beta w) eta'^2, 0.95) from
         ``rr_depth`` on, else 1."""
         bs, wt = pre
-        q = dr.minimum(dr.max(mi.unpolarized_spectrum(beta * wt), axis=0)
-                       * dr.square(eta * bs.eta), 0.95)
+        q = throughput_survival(beta * wt, eta * bs.eta)
         return dr.select(depth + 1 >= self.rr_depth, q, 1.0)
 
     def survivals(self, beta, eta, depth, pre, q, classic, inv_p, Q, active):
@@ -561,7 +558,6 @@ class EARS:
         pay for its kernel: the rest of the render runs ``plain`` (policy ``never`` only)."""
         v = max(v, 1e-30)
         self.gain = max(v_c, 0.0) * c_c / (v * c)
-        self.change = (v_c / v, c_c / c)
         if self.policy == "never" and self.gain < KERNEL_COST:
             self.plain = True
 
