@@ -42,4 +42,16 @@ MUTANTS = [
     ("learned-margin-above-one", "integrators/plugins/mis3.py",
      "below = np.array(LEARNED_P)[arg] < 1.0", "below = np.array(LEARNED_P)[arg] > 0.0",
      ["test_mis3_learned.py"]),
+    # the image's objective: every region's pixel weight read as one
+    ("learned-image-weight-ignored", "integrators/plugins/mis3.py",
+     "w_r = np.where(weighed > 0, st[:, WEIGHT] / np.maximum(weighed, 1.0),",
+     "w_r = np.where(weighed > 0, 1.0,", ["test_mis3_learned.py"]),
+    # the image's rate V / C as measured, not as the new decisions will make it
+    ("learned-image-rate-not-iterated", "integrators/plugins/mis3.py",
+     "lam = max(v_img + dv, 0.1 * v_img) / max(c_img + dc, 0.1 * c_img)",
+     "lam = v_img / c_img", ["test_mis3_learned.py"]),
+    # a recording visit adds weight one instead of its pixel's
+    ("learned-image-visit-unweighted", "integrators/plugins/mis3.py",
+     "visit[WEIGHT] = dr.gather(mi.Float, self.pixels.weights(), self._pixel, record)",
+     "visit[WEIGHT] = mi.Float(1.0)", ["test_mis3_learned.py"]),
 ]

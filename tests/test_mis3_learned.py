@@ -75,13 +75,16 @@ def test_specular_box_after_learning():
 def test_run_record_says_how_it_learned(tmp_path):
     """``render`` writes the integrator's ``run_notes()`` into the run record: for the learned
     allocation, how many passes recorded statistics, whether learning settled, how many regions
-    learned and the spread of what they chose."""
+    learned, the spread of what they chose, and the objective (the image's relMSE x cost once
+    the pixels were measured, with the image's variance and cost per camera sample)."""
     from integrators.app import progressive
     scene = mi.load_dict({**closed_box_scene(0.5, 1.0), "integrator": {"type": "mis3"}})
-    acc = progressive.render(scene, spp=64)
+    acc = progressive.render(scene, spp=256)
     notes = acc.run_record().notes
     assert notes["selection"] == "learned" and notes["recorded_passes"] >= 1, notes
     assert {"settled", "regions_learned"} <= set(notes), notes
+    assert notes["objective"] == "image relMSE x cost", notes
+    assert notes["image_rel_variance_per_sample"] > 0 and notes["cost_per_sample"] >= 2, notes
 
 
 def _trapezoid(y, x):
@@ -140,23 +143,25 @@ def test_allocation_variance_is_the_estimators_variance(c):
     assert old < 0.9 * est.var(), (old, est.var())
 
 
-def _region_statistics(k, v_rest, spread=1.0, n=1000, n_paths=500):
+def _region_statistics(k, v_rest, spread=1.0, n=1000, n_paths=500, weight=1.0):
     """One region's statistics (the layout of mis3's RegionGrid): a vertex whose light
     technique carries the whole mean mu = 1, pooled second moment M(c) = 2 / c over points
     whose light share's squared mean averages ``spread`` (per-point noise (2 - spread) / c at
     c >= 1 light samples: spread 1, variance 1 / c; spread 1.9, 0.1 / c and the rest variation
     of the mean between points); recorded paths whose variance is the pooled one at one light
-    sample plus v_rest, their cost 2 vertices more than the vertex's own."""
+    sample plus v_rest, their cost 2 vertices more than the vertex's own; every visit's pixel
+    of relMSE weight ``weight``."""
     from integrators.plugins import mis3 as M
     cand = np.array(M.LEARNED_P)
-    st = np.zeros(M.PAIRS + k)
+    st = np.zeros(M.WEIGHT + 2)
     st[:k] = n * 2.0 / cand                                         # M(c)
     st[k], st[k + 1], st[k + 2] = n * 1.0, n, n                     # mean, visits, hits
     st[k + 3:M.PATH_STATS] = n * 1.0                                # mu_l(c) = mu
     v_pix, c_pix, mean = 1.0 + v_rest, 1.0 + M.LIGHT_COST + 2.0, 2.0
     st[M.PATH_STATS:M.PATH_STATS + 4] = [n_paths * (v_pix + mean ** 2), n_paths * mean,
                                          n_paths * c_pix, n_paths]
-    st[M.PAIRS:] = n * spread                                       # E[m_l(x; c)^2]
+    st[M.PAIRS:M.WEIGHT] = n * spread                               # E[m_l(x; c)^2]
+    st[M.WEIGHT:] = n * weight, n                                   # pixel weights
     return st
 
 
@@ -181,7 +186,7 @@ def test_learned_objective_weighs_the_pixel_sample_and_the_noise():
     integ = mi.load_dict(LEARNED)
     mi.render(scene, integrator=integ, spp=1)            # builds the grid for this scene
     k = len(M.LEARNED_P)
-    st = np.zeros((integ.grid.size, M.PAIRS + k))
+    st = np.zeros((integ.grid.size, M.WEIGHT + 2))
     for r, (v_rest, spread) in enumerate([(0.0, 1.0), (20.0, 1.0), (0.2, 1.0), (0.9, 1.0),
                                           (0.2, 1.9)]):
         st[r] = _region_statistics(k, v_rest, spread)
@@ -198,6 +203,105 @@ def test_learned_objective_weighs_the_pixel_sample_and_the_noise():
     pooled = st.copy()
     pooled[:, M.PAIRS:] = 0.0                            # (read as the squared pooled mean)
     assert learned(pooled)[4] == 4.0
+
+
+def test_learned_objective_trades_at_the_images_rate():
+    """With the pixels measured (``PixelStats``), a region's allocation minimises the image's
+    relMSE x time: w_r V(c) + (V / C) cost(c), w_r its visits' mean pixel weight 1 / (I_p^2 +
+    eps), V / C the image's relative variance per unit of cost as it will be under the new
+    decisions.  Regions of variance 1 / c per visit at c light samples:
+    * the image's V / C = 0.5, visits too rare to change it: c = sqrt(2 w_r / 0.5), so pixel
+      weights 0.25, 1 and 4 take 1, 2 and 4 light samples;
+    * one region of weight 1 with a visit per camera sample, V = 1, C = 2: at 2 light samples
+      V / C would fall to 0.5 / 2.5, at 3 to 0.33 / 3: the fixed point takes 4.
+    Negative controls: each pixel sample's own variance x cost (the objective without the
+    pixels) gives the three regions one allocation; mutants ``learned-image-weight-ignored``
+    and ``learned-image-rate-not-iterated`` (2 in the last case)."""
+    from types import SimpleNamespace
+
+    from integrators.plugins import mis3 as M
+    scene = mi.load_dict(closed_box_scene(0.5, 1.0))
+    integ = mi.load_dict(LEARNED)
+    mi.render(scene, integrator=integ, spp=1)            # builds the grid for this scene
+    k = len(M.LEARNED_P)
+    n = 1000
+
+    def learned(stats, pixels):
+        integ.grid.set_table(np.full(integ.grid.size, -1.0, np.float32))
+        integ.grid.stats = mi.Float(stats.ravel())
+        integ.pixels = pixels
+        try:
+            integ.learn()
+        finally:
+            integ.pixels = None
+        return list(integ.grid.table()[:len(stats)][:3])
+
+    st = np.zeros((integ.grid.size, M.WEIGHT + 2))
+    for r, w in enumerate([0.25, 1.0, 4.0]):
+        st[r] = _region_statistics(k, 0.0, n=n, weight=w)
+    rare = SimpleNamespace(image=lambda: (1.0, 2.0), cost_samples=1e12)
+    assert learned(st, rare) == [1.0, 2.0, 4.0]
+    own = learned(st, None)
+    assert own[0] == own[1] == own[2]
+    one = np.zeros_like(st)
+    one[0] = _region_statistics(k, 0.0, n=n, weight=1.0)
+    # (f_r = visits / (LEARN_FRACTION x camera samples) = 1)
+    dense = SimpleNamespace(image=lambda: (1.0, 2.0), cost_samples=n / M.LEARN_FRACTION)
+    assert learned(one, dense)[0] == 4.0
+
+
+def test_learning_measures_the_pixels_and_weighs_the_visits():
+    """A first learning render measures its pixels before any vertex records (half the
+    learning share, ``LEARN_PIXELS``), then each recording visit adds its pixel's relMSE
+    weight: on the closed emitting box at max_depth 3 (L = 1 + 0.5 + 0.25 = 1.75 everywhere,
+    one pixel) the visits' mean weight is 1 / (1.75^2 + 0.01) within 3 % (the pixel's mean
+    from 1,024 samples or more), and a camera sample costs the camera ray and two vertices of
+    at most 4 light samples each, 1 + 2 x (1 + LIGHT_COST p) (the recording passes' paths, the
+    second with the learned p).  Mutant: ``learned-image-visit-unweighted``."""
+    from integrators.plugins import mis3 as M
+    scene = mi.load_dict(closed_box_scene(0.5, 1.0))
+    integ = mi.load_dict({**LEARNED, "max_depth": 3})
+    mi.render(scene, integrator=integ, spp=1 << 16)
+    px = integ.pixels
+    first = int((1 << 16) * M.LEARN_SHARE)         # (the pixels, then the recording passes)
+    pre = int(first * M.LEARN_PIXELS)
+    assert px.count == first + 2 * (first - pre) and px.cost_samples == px.count - pre
+    st = integ.grid.statistics()
+    w = st[:, M.WEIGHT].sum() / st[:, M.WEIGHT + 1].sum()
+    assert st[:, M.WEIGHT + 1].sum() == st[:, len(M.LEARNED_P) + 1].sum()   # (every visit)
+    assert abs(w * (1.75 ** 2 + M.PIXEL_EPS) - 1.0) < 0.03, w
+    v, c = px.image()
+    assert v > 0 and 3.0 <= c <= 1.0 + 2.0 * (1.0 + M.LIGHT_COST * max(M.LEARNED_P))
+
+
+def test_pixel_layout_is_mitsubas():
+    """``PixelStats.pixel`` (lane // spp) is the pixel Mitsuba's render gives each lane of a
+    pass: a Python integrator that returns its lane's computed pixel index renders the image of
+    the indices.  Box filter: exactly.  A Gaussian filter with the border sampled (the lanes
+    laid out over the film with its border): the filter averages indices that are linear in
+    x and y, so each pixel reads its own index within the averaging's noise (a layout without
+    the border would be off by 24 or more)."""
+    from integrators.sampling.learning import PixelStats
+
+    class Lanes(mi.SamplingIntegrator):
+        def sample(self, scene, sampler, ray, medium=None, active=True):
+            pix = self.stats.pixel(sampler.wavefront_size(), self.spp)
+            return mi.Color3f(mi.Float(pix), 0.0, 0.0), True, []
+
+    for border, filt, spp, tol in ((False, "box", 4, 0.0), (True, "gaussian", 1024, 1.0)):
+        scene = mi.load_dict({"type": "scene", "s": {
+            "type": "perspective", "film": {"type": "hdrfilm", "width": 7, "height": 5,
+                                            "sample_border": border,
+                                            "rfilter": {"type": filt}}}})
+        sensor = scene.sensors()[0]
+        b = sensor.film().rfilter().border_size() if border else 0
+        assert b == (2 if border else 0)
+        integ = Lanes(mi.Properties())
+        integ.stats, integ.spp = PixelStats(PixelStats.layout(sensor), 0.01), spp
+        img = np.array(mi.render(scene, integrator=integ, spp=spp))[..., 0]
+        w = 7 + 2 * b
+        idx = np.arange(w * (5 + 2 * b)).reshape(5 + 2 * b, w)[b:b + 5, b:b + 7]
+        assert np.all(np.abs(img - idx) <= tol), (border, img, idx)
 
 
 def test_learning_records_whole_paths_and_pairs():

@@ -61,10 +61,10 @@ With p(1) = p(2) = 0 (``p_light = 1``) the continuation is the BSDF's own sample
   M(p) = int (f L_e)^2 / (p p_l + p_b); each light sample or emission hit adds
   (f L_e)^2 / ((p p_l + p_b) Q0) for every candidate p (Q0 the density it was drawn with), so all
   candidates are estimated from the same samples, and so is each technique's share of the mean
-  (mu_l(p), mu_b(p)); between passes each region takes the candidate minimising the variance
-  x cost of the whole pixel sample, (V(p) + V_rest) (1 + 0.5 p + C_rest) (a light sample
-  costs about half a vertex).  V(p) = M(p) - S_l(p) / max(p, 1) - mu_b^2
-  (:func:`allocation_variance`) is the vertex's noise: a region pools many points, and the
+  (mu_l(p), mu_b(p)); between passes each region takes the candidate that makes the *image*
+  most efficient (1 / (relMSE x time)): w_r (V(p) + V_rest) + (V / C) (1 + 0.5 p + C_rest)
+  (a light sample costs about half a vertex; the argument below).  V(p) = M(p) - S_l(p) /
+  max(p, 1) - mu_b^2 (:func:`allocation_variance`) is the vertex's noise: a region pools many points, and the
   variation of the mean between them is no noise that light samples could reduce.  S_l(p) =
   E[m_l(x; p)^2], the squared mean over the region's points of the light technique's share at
   a point (m_l(x; p) = int f L_e w_l(p)), is measured per candidate: the product of two
@@ -93,10 +93,32 @@ With p(1) = p(2) = 0 (``p_light = 1``) the continuation is the BSDF's own sample
   ceil(n) light samples, averaged, each weighted at the effective density m p_l (the
   multi-sample MIS estimator given m, unbiased for every m >= 1), and emission found by the
   BSDF sample is weighted against m p_l; M(n) is estimated by the same formula.
-  A quarter of the vertices record statistics.  A render call that is still learning spends
-  its first sixteenth of samples learning, then renders the rest with what it learned (those
-  samples render at one light sample everywhere: the smaller their share, the less they
-  weigh in the image); learning
+  **The image's exchange rate** (the EARS argument, Rath et al. 2022, applied to the light
+  samples): the image's relMSE per camera sample is V = mean over pixels of Var_p / (I_p^2 +
+  eps) and its cost C per camera sample; a region visited f_r times per camera sample that
+  changes its vertices' variance by dV and cost by dc changes V by f_r w_r dV and C by f_r dc
+  (w_r the mean of 1 / (I_p^2 + eps) over its visits' pixels), and V C falls iff w_r dV +
+  (V / C) dc < 0: every region trades variance against cost at the image's rate V / C.  The
+  pixel sample's own (V(p) + V_rest) (cost + C_rest), the objective before, trades at that
+  pixel sample's rate instead, so it spent light samples where a pixel's noise is small next
+  to the image's (a bright highlight, whose relative error is small) and saved them where its
+  other noise is large, though there the image's relMSE is (:class:`~integrators.sampling.
+  learning.PixelStats`: veach_mis, the table keeping one light sample in 30 % of the visits
+  where a uniform 4 was 1.2x as efficient).  The pixels are measured while learning: a
+  first learning call spends half its learning share (``LEARN_PIXELS``) on the pixels' means
+  before any vertex records, each recording visit then adds its pixel's weight, and the
+  recording passes give V and C; V / C is taken as the new decisions will make it (their
+  predicted change of V and C, ``LEARN_ROUNDS`` rounds of the fixed point).  Where the pixels
+  are not known (a scalar variant, a wavefront Mitsuba did not lay out pixel by pixel, or a
+  first call too small to measure them) the pixel sample's own objective stays.
+  Every vertex of a recording pass records statistics (the recording code runs, masked, in
+  every SIMD packet that has one recording lane, so a fraction saves nothing: 124 ms for a
+  64-spp recording pass on veach_mis with a quarter of the vertices or all, 79 ms without
+  records).  A render call that is still learning spends its first thirty-second of samples
+  learning (a first call: half of it measuring the pixels), then, while the decisions still
+  move, a recording pass of twice that with what it learned (``LEARN_MORE``), then renders the
+  rest with what it learned (the first samples render at one light sample everywhere: the
+  smaller their share, the less they weigh in the image); learning
   stops (the kernel drops its statistics) once a pass changes the decisions of less than 5 %
   of the visits.  Rendering in passes (``render --spp`` or ``--time``) keeps learning until
   then; a new scene starts from scratch (``reset_learning()`` forgets on request).
@@ -115,7 +137,7 @@ from ..common import any_flag, bsdf_at, bsdf_flags, channel_mean, depth_limit, i
 from ..params import Param, ParameterError
 from ..registry import plugin
 from ..sampling import light_selection, mis, roulette
-from ..sampling.learning import RegionGrid
+from ..sampling.learning import PixelStats, RegionGrid
 from ..sampling.techniques import DELTA, DIFFUSE, GLOSSY, lobe_contexts
 from ..sampling.vertex import VertexEstimator
 from .base import HIDE_EMITTERS, MAX_DEPTH, IntegratorTemplate
@@ -149,6 +171,11 @@ LEARN_MIN_PATHS = 32
 #: light-share estimates (``record_pair``)
 PATH_STATS = 2 * len(LEARNED_P) + 3
 PAIRS = PATH_STATS + 4
+#: the sum over a region's recording visits of their pixel's weight 1 / (I_p^2 + PIXEL_EPS),
+#: and the number of those visits (the ones recorded once the pixels' means were known)
+WEIGHT = PAIRS + len(LEARNED_P)
+#: relative errors are (x - I_p)^2 / (I_p^2 + PIXEL_EPS): the relMSE of the benchmarks
+PIXEL_EPS = 0.01
 #: visits a region needs before its learned probability replaces the adaptive one
 LEARN_MIN_VISITS = 64
 #: non-zero light samples or emission hits a region needs before it leaves p(3) = 1
@@ -158,10 +185,13 @@ LEARN_MIN_HITS = 32
 #: one light sample (its variance weighs share^2 / share = share in the image), so a small
 #: share with more recording vertices per sample: veach_mis 1.29-1.32x `path` instead of
 #: 1.15-1.18x (share 1/8, fraction 1/8), the other experiment scenes within the noise (side runs
-#: at 128 px and 512 spp)
-LEARN_SHARE = 1 / 16
-#: fraction of vertices that record statistics
-LEARN_FRACTION = 0.25
+#: at 128 px and 512 spp).  With the image's objective (LEARN_IMAGE), veach_mis against `path`
+#: over 12 renders: 1/16 and one recording pass 1.53x, 1/32 and a second recording pass of
+#: twice its size (LEARN_MORE 1) 1.59x, two more (1/32 + 1/16 + 1/8 in all) 1.55x
+LEARN_SHARE = 1 / 32
+#: fraction of the vertices of a recording pass that record statistics (all: a recording pass
+#: costs the same with a quarter, see the docstring; before, a quarter)
+LEARN_FRACTION = 1.0
 #: a learned p(3) below 1 must promise at least this factor less variance x cost than p(3) = 1
 #: (the estimates of small p(3) are heavy-tailed and read low more often than high; above one
 #: the density grows and the estimates do not: no margin there)
@@ -171,6 +201,19 @@ LEARN_SETTLED = 0.05
 #: whether the recording vertices measure the light share's squared mean between points
 #: (``record_pair``; False: the pooled variance is taken as the vertex's noise, for comparison)
 LEARN_PAIRS = True
+#: whether the allocation weighs each region by its pixels' weight in the relMSE and trades
+#: variance against cost at the image's rate (PixelStats; False: each pixel sample's own
+#: variance x cost, as before, for comparison)
+LEARN_IMAGE = True
+#: the part of a first learning share that measures the pixels' means before any vertex
+#: records (the recording vertices weigh what they see by their pixel's weight in the relMSE)
+LEARN_PIXELS = 0.5
+#: recording passes a learning call may add after its first (each twice the last, while the
+#: decisions move), and the share of the call's samples they may take in all
+LEARN_MORE = 1
+LEARN_MORE_SHARE = 0.25
+#: rounds of the fixed point between the decisions and the image's V / C they imply
+LEARN_ROUNDS = 4
 
 
 def allocation_variance(second, mean, mean_l, candidates=LEARNED_P, sq_l=None):
@@ -262,11 +305,17 @@ class MIS3(IntegratorTemplate):
         self._quiet = False
         self._learn_passes = 0
         self._depth = 0
+        #: per-pixel statistics of the render so far (:class:`PixelStats`; None: none yet)
+        self.pixels = None
+        self._collect = self._weigh = False
+        self._pixel = None
+        self._spp = 0
 
     # ---- selection=learned: the light-sample probability per region ------------------------
     def scene_warnings(self, scene):
         if self.learned:   # a new scene: learn from scratch
-            self.grid = RegionGrid(scene, stats=PAIRS + len(LEARNED_P))
+            self.grid = RegionGrid(scene, stats=WEIGHT + 2)
+            self.pixels = None
             self.settled = False
             self._learn_passes = 0
         return []
@@ -274,24 +323,66 @@ class MIS3(IntegratorTemplate):
     def render(self, scene, sensor=0, seed=0, spp=0, develop=True, evaluate=True):
         """Mitsuba's render; with selection=learned, the pass's statistics then set the
         light-sample probability of every region for the next pass, and a render call that is
-        still learning splits itself in two: LEARN_SHARE of its samples first, learned from,
-        then the rest (the spp-weighted mean of two unbiased images; the second pass's seed is
-        the first's + 2^31), so a single call already profits from what it learns."""
+        still learning splits itself in passes (:meth:`_learning_call`): LEARN_SHARE of its
+        samples first, learned from, then the rest (the spp-weighted mean of unbiased images,
+        each pass with a seed of its own), so a single call already profits from what it
+        learns."""
         if self.learned and develop and self._depth == 0:
             self.prepare(scene)
             if self.recording:
-                total = int(spp) if spp else self._sensor(scene, sensor).sampler().sample_count()
+                sensor_obj = self._sensor(scene, sensor)
+                total = int(spp) if spp else sensor_obj.sampler().sample_count()
                 first = int(total * LEARN_SHARE)
                 if first >= 1 and total - first >= 1:
-                    img = self._pass(scene, sensor, seed, first, evaluate)
-                    self._quiet = True    # the rest uses what was learned, records nothing
-                    try:
-                        rest = self._pass(scene, sensor, (int(seed) + 2 ** 31) % 2 ** 32,
-                                          total - first, evaluate)
-                    finally:
-                        self._quiet = False
-                    return img * (first / total) + rest * ((total - first) / total)
+                    img = None
+                    for n, part in self._learning_call(scene, sensor, sensor_obj, int(seed),
+                                                       total, first, evaluate):
+                        img = part * (n / total) if img is None else img + part * (n / total)
+                    return img
         return self._pass(scene, sensor, seed, spp, evaluate, develop)
+
+    def _learning_call(self, scene, sensor, sensor_obj, seed, total, first, evaluate):
+        """The passes of a render call that is still learning, [(spp, image)]: the pixels'
+        means first where none are known (``LEARN_PIXELS`` of the learning share; a share of
+        one sample: its recording pass measures them for the next call), a recording pass, up
+        to ``LEARN_MORE`` more of twice the size while the decisions move, then the rest with
+        what was learned."""
+        px = None
+        if is_jit() and LEARN_IMAGE:
+            n_pix = PixelStats.layout(sensor_obj)
+            if self.pixels is None or self.pixels.n != n_pix:
+                self.pixels = PixelStats(n_pix, PIXEL_EPS)
+            px = self.pixels
+        parts = []
+
+        def run(n, s, quiet):
+            # (pixels collected while the image's objective is on; the visits weighted by
+            # their pixels once their means are known)
+            self._quiet, self._collect = quiet, px is not None
+            self._weigh = px is not None and px.count > 0
+            try:
+                parts.append((n, self._pass(scene, sensor, s % 2 ** 32, n, evaluate)))
+            finally:
+                self._quiet = self._collect = self._weigh = False
+
+        pre = int(first * LEARN_PIXELS) if px is not None and px.count == 0 else 0
+        if pre:
+            run(pre, seed + 3 * 2 ** 30, True)
+        run(first - pre, seed, False)
+        size, used = first - pre, first
+        for extra in range(LEARN_MORE):
+            size *= 2
+            if not self.recording or used + size > total * LEARN_MORE_SHARE:
+                break
+            run(size, seed + (extra + 1) * 2 ** 28, False)
+            used += size
+        self._quiet = True    # the rest uses what was learned, records nothing
+        try:
+            parts.append((total - used, self._pass(scene, sensor, (seed + 2 ** 31) % 2 ** 32,
+                                                   total - used, evaluate)))
+        finally:
+            self._quiet = False
+        return parts
 
     def reset_learning(self):
         """Forget what was learned (the next render learns from scratch; compiled kernels are
@@ -300,6 +391,7 @@ class MIS3(IntegratorTemplate):
             self.grid.reset()
         self.settled = False
         self._learn_passes = 0
+        self.pixels = None
 
     def run_notes(self) -> dict:
         """For the run record: how the light-sample allocation was learned."""
@@ -314,6 +406,13 @@ class MIS3(IntegratorTemplate):
             if t.size:
                 notes["allocation_quantiles_10_50_90"] = [round(float(q), 3) for q in
                                                           np.quantile(t, [0.1, 0.5, 0.9])]
+        image = self.pixels.image() if self.pixels is not None else None
+        # (what the regions' decisions minimised: see "The image's exchange rate")
+        notes["objective"] = "image relMSE x cost" if image is not None else \
+            "pixel sample variance x cost"
+        if image is not None:
+            notes["image_rel_variance_per_sample"] = round(image[0], 6)
+            notes["cost_per_sample"] = round(image[1], 4)
         return notes
 
     @staticmethod
@@ -323,11 +422,17 @@ class MIS3(IntegratorTemplate):
     def _pass(self, scene, sensor, seed, spp, evaluate=True, develop=True):
         """One call of Mitsuba's render, then (while learning) learn from its statistics."""
         self._depth += 1
+        self._spp = int(spp)
+        self._pixel = None
+        recording = self.recording
         try:
             img = self.base_render(scene, sensor, seed, spp, develop, evaluate)
         finally:
             self._depth -= 1
-        if self.recording and self._depth == 0:   # (the kernel recorded statistics)
+        if self._pixel is not None and self._depth == 0:   # (the kernel collected)
+            dr.eval(img)
+            self.pixels.passed(spp, costed=recording)
+        if recording and self._depth == 0:   # (the kernel recorded statistics)
             dr.eval(img)
             self.learn()
             self._learn_passes += 1
@@ -372,11 +477,39 @@ class MIS3(IntegratorTemplate):
         v_rest = np.where(have, np.maximum(v_pix - pooled[rows, u], 0.0),
                           LEARN_REST_VAR * var[:, ONE])
         c_rest = np.where(have, np.maximum(c_pix - cost[0, u], 0.0), 0.0)
-        j = (var + v_rest[:, None]) * (cost + c_rest[:, None])
-        arg = np.argmin(j, axis=1)
-        below = np.array(LEARNED_P)[arg] < 1.0   # (the margin: see LEARN_MARGIN)
-        keep_one = below & (j[np.arange(len(arg)), arg] > LEARN_MARGIN * j[:, ONE])
-        best = np.where(keep_one, 1.0, np.array(LEARNED_P, dtype=np.float32)[arg])
+        cand = np.array(LEARNED_P, dtype=np.float32)
+
+        def choose(j):   # the candidate of least j, and one light sample kept by the margin
+            arg = np.argmin(j, axis=1)
+            below = cand[arg] < 1.0   # (the margin: see LEARN_MARGIN)
+            keep_one = below & (j[rows, arg] > LEARN_MARGIN * j[:, ONE])
+            return np.where(keep_one, ONE, arg)
+
+        image = self.pixels.image() if self.pixels is not None else None
+        weighed = st[:, WEIGHT + 1]
+        if image is not None and weighed.sum() > 0:
+            # the image's efficiency: each region's variance in relMSE units (its visits' mean
+            # pixel weight) traded against cost at the image's rate V / C (PixelStats); V and
+            # C as they will be under the new decisions (visits per camera sample f_r), a few
+            # rounds of the fixed point
+            v_img, c_img = image
+            # (a region whose visits were all recorded before the pixels were known: the
+            # mean weight of all weighed visits)
+            w_r = np.where(weighed > 0, st[:, WEIGHT] / np.maximum(weighed, 1.0),
+                           st[:, WEIGHT].sum() / weighed.sum())
+            f_r = np.where(ok, n / (LEARN_FRACTION * self.pixels.cost_samples), 0.0)
+            lam = v_img / c_img
+            for r in range(LEARN_ROUNDS + 1):
+                arg = choose(w_r[:, None] * (var + v_rest[:, None])
+                             + lam * (cost + c_rest[:, None]))
+                if r == LEARN_ROUNDS:
+                    break
+                dv = float(np.sum(f_r * w_r * (var[rows, arg] - var[rows, u])))
+                dc = float(np.sum(f_r * LIGHT_COST * (cand[arg] - cand[u])))
+                lam = max(v_img + dv, 0.1 * v_img) / max(c_img + dc, 0.1 * c_img)
+        else:
+            arg = choose((var + v_rest[:, None]) * (cost + c_rest[:, None]))
+        best = cand[arg]
         table = np.full(len(old), -1.0, dtype=np.float32)
         table[live] = np.where(ok, best, -1.0)
         # settled: the decisions that changed carry less than LEARN_SETTLED of the visits
@@ -398,7 +531,12 @@ class MIS3(IntegratorTemplate):
         record = None
         if self.recording:
             record = active & (sampler.next_1d(active) < LEARN_FRACTION)
-            self.grid.add(cell, {len(LEARNED_P) + 1: mi.Float(1.0)}, record)
+            visit = {len(LEARNED_P) + 1: mi.Float(1.0)}
+            if self._weigh and self._pixel is not None:
+                # (and its pixel's weight in the relMSE, where the pixels' means are known)
+                visit[WEIGHT] = dr.gather(mi.Float, self.pixels.weights(), self._pixel, record)
+                visit[WEIGHT + 1] = mi.Float(1.0)
+            self.grid.add(cell, visit, record)
         table = self.grid.lookup(cell, active)
         return dr.select(table > 0, table, 1.0), (cell, record)
 
@@ -446,6 +584,8 @@ class MIS3(IntegratorTemplate):
         if track is None:
             return
         where, on, cost = track
+        if self._pixel is not None:
+            self.pixels.add_cost(cost, dr.full(mi.Bool, True, dr.width(cost)))
         value = luminance(L)
         self.grid.add(where, {PATH_STATS: value * value, PATH_STATS + 1: value,
                               PATH_STATS + 2: cost, PATH_STATS + 3: mi.Float(1.0)}, on)
@@ -558,8 +698,13 @@ class MIS3(IntegratorTemplate):
         si, L = self.camera_hit(scene, ray, active)
         valid = si.is_valid()
         active &= valid & (1 < depth_limit(self.max_depth))
+        # while collecting pixel statistics, each lane's pixel (None: not laid out by pixel)
+        self._pixel = self.pixels.pixel(sampler.wavefront_size(), self._spp) \
+            if self._collect and is_jit() else None
         L += self.vertex.path(scene, sampler, sel, mi.Ray3f(ray), si, active, self.max_depth,
                               learner=self if sel.count > 0 else None)
+        if self._pixel is not None:
+            self.pixels.add(self._pixel, luminance(L))
         return L, valid, []
 
     @record_once

@@ -83,3 +83,82 @@ class RegionGrid:
 
     def table(self) -> np.ndarray:
         return self._table.copy()
+
+
+class PixelStats:
+    """Per-pixel statistics of a render so far, for estimators that learn what a decision is
+    worth to the *image*: the mean and second moment of each pixel's camera-sample estimates
+    (luminance) and the cost of a camera sample.  From them :meth:`weights` gives each pixel's
+    weight in the relMSE, 1 / (I_p^2 + eps) (I_p the pixel's mean so far), and
+    :meth:`ratio` the image's relative variance per unit of cost, V / C: where a decision
+    changes a pixel sample's variance by dV and its cost by dC, the efficiency of the whole
+    image (1 / (V C)) improves iff w_p dV + (V / C) dC < 0, so that is the exchange rate of
+    variance against cost that every region's decision should use (the EARS argument, Rath et
+    al. 2022).
+
+    Mitsuba's render hands ``sample`` every camera sample of a pass in one wavefront, pixel by
+    pixel with ``spp`` consecutive lanes each (lane // spp is the pixel, row by row over the
+    film's crop, plus the filter's border where the film samples it): :meth:`pixel` returns
+    that index, or None where the wavefront is not laid out so (then nothing is collected)."""
+
+    def __init__(self, n_pixels: int, eps: float):
+        self.n, self.eps = int(n_pixels), float(eps)
+        self.s1 = dr.zeros(mi.Float, self.n)
+        self.s2 = dr.zeros(mi.Float, self.n)
+        self.count = 0                 # camera samples per pixel so far
+        self.cost = dr.zeros(mi.Float, 1)
+        self.cost_samples = 0          # camera samples whose cost was added to ``cost``
+        self.w = dr.full(mi.Float, 1.0, self.n)
+        dr.eval(self.s1, self.s2, self.cost, self.w)
+
+    @staticmethod
+    def layout(sensor) -> int:
+        """The number of pixels Mitsuba's render lays a pass out over for ``sensor``."""
+        film = sensor.film()
+        size = np.array(film.crop_size(), dtype=np.int64)
+        if film.sample_border():
+            size += 2 * int(film.rfilter().border_size())
+        return int(size[0] * size[1])
+
+    def pixel(self, width: int, spp: int):
+        """The pixel of each lane of a wavefront of ``width`` lanes at ``spp`` (or None); the
+        width is the sampler's (``wavefront_size``): a sensor's rays may be narrower (a
+        radiance meter's ray is one literal)."""
+        if width != self.n * spp or spp < 1:
+            return None
+        return dr.arange(mi.UInt32, width) // dr.opaque(mi.UInt32, spp)
+
+    def add(self, pixel, value):
+        """A camera sample's estimate (luminance) for its ``pixel`` (in the kernel)."""
+        dr.scatter_add(self.s1, value, pixel)
+        dr.scatter_add(self.s2, value * value, pixel)
+
+    def add_cost(self, cost, active):
+        """Camera samples' costs (in the kernel); count them with :meth:`counted`."""
+        dr.scatter_reduce(dr.ReduceOp.Add, self.cost, cost, mi.UInt32(0), active,
+                          mode=dr.ReduceMode.Expand)
+
+    def passed(self, spp: int, costed: bool):
+        """After a pass of ``spp`` that added to the statistics (and its costs, ``costed``)."""
+        self.count += int(spp)
+        if costed:
+            self.cost_samples += int(spp) * self.n
+        mean = np.array(self.s1, np.float64) / max(self.count, 1)
+        self.w = mi.Float((1.0 / (np.maximum(mean, 0.0) ** 2 + self.eps)).astype(np.float32))
+
+    def weights(self):
+        return self.w
+
+    def image(self):
+        """(V, C): the image's mean relative variance per camera sample and the mean cost of a
+        camera sample (None until both are measured)."""
+        if self.count < 2 or self.cost_samples == 0:
+            return None
+        n = self.count
+        s1 = np.array(self.s1, np.float64)
+        s2 = np.array(self.s2, np.float64)
+        mean = s1 / n
+        var = np.maximum(s2 / n - mean * mean, 0.0) * n / (n - 1)
+        v = float(np.mean(var / (np.maximum(mean, 0.0) ** 2 + self.eps)))
+        c = float(self.cost[0]) / self.cost_samples
+        return (v, c) if v > 0 and c > 0 else None
