@@ -53,8 +53,9 @@ PATH_METHODS = (
     Method("mis3", "path", {"type": "mis3", "max_depth": PATH_DEPTH},
            "our `mis3` with its defaults: the BSDF's own sample continues every path, the "
            "light-sample allocation (probability below one, expected count up to 4 above) "
-           "learned per region from the render's own first sixteenth of samples (learning is in "
-           "the time), adaptive light selection, balance heuristic"),
+           "learned per region for the image's relMSE x time from the render's own first "
+           "samples (a sixteenth in all; learning is in the time), adaptive light selection, "
+           "balance heuristic"),
     Method("mis3_fixed", "path",
            {"type": "mis3", "max_depth": PATH_DEPTH, "selection": "fixed"},
            "our `mis3` with the lecture's p-vector 1/3 each (a light sample with probability "

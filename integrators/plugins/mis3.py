@@ -203,7 +203,11 @@ LEARN_SETTLED = 0.05
 LEARN_PAIRS = True
 #: whether the allocation weighs each region by its pixels' weight in the relMSE and trades
 #: variance against cost at the image's rate (PixelStats; False: each pixel sample's own
-#: variance x cost, as before, for comparison)
+#: variance x cost, as before, for comparison).  Side runs against `path` (128 px, 512 spp,
+#: with the schedule of their time): veach_mis 1.24x -> 1.56x, small_light 0.95x -> 1.15x,
+#: sharp_glossy 0.78x -> 0.83x, furnace 1.03x -> 1.75x, many_lights 5.5x -> 6.1x, the Cornell
+#: box, specular_box, the caustic and the ajar door unchanged within the noise
+#: (benchmarks/results/mis3/image_rate)
 LEARN_IMAGE = True
 #: the part of a first learning share that measures the pixels' means before any vertex
 #: records (the recording vertices weigh what they see by their pixel's weight in the relMSE)
