@@ -40,7 +40,7 @@ MUTANTS = [
     # the margin that protects one light sample also against candidates above one (whose
     # estimates are not heavy-tailed): allocations that pay up to 20 % are refused
     ("learned-margin-above-one", "integrators/plugins/mis3.py",
-     "below = np.array(LEARNED_P)[arg] < 1.0", "below = np.array(LEARNED_P)[arg] > 0.0",
+     "below = cand[arg] < 1.0   # (the margin", "below = cand[arg] > 0.0   # (the margin",
      ["test_mis3_learned.py"]),
     # the image's objective: every region's pixel weight read as one
     ("learned-image-weight-ignored", "integrators/plugins/mis3.py",

@@ -226,10 +226,11 @@ def test_learned_objective_trades_at_the_images_rate():
     k = len(M.LEARNED_P)
     n = 1000
 
-    def learned(stats, pixels):
+    def learned(stats, pixels, recorded=1e12):
+        # (recorded: the camera samples of the recording passes, visits / it = f_r x fraction)
         integ.grid.set_table(np.full(integ.grid.size, -1.0, np.float32))
         integ.grid.stats = mi.Float(stats.ravel())
-        integ.pixels = pixels
+        integ.pixels, integ._recorded = pixels, recorded
         try:
             integ.learn()
         finally:
@@ -239,15 +240,16 @@ def test_learned_objective_trades_at_the_images_rate():
     st = np.zeros((integ.grid.size, M.WEIGHT + 2))
     for r, w in enumerate([0.25, 1.0, 4.0]):
         st[r] = _region_statistics(k, 0.0, n=n, weight=w)
-    rare = SimpleNamespace(image=lambda: (1.0, 2.0), cost_samples=1e12)
-    assert learned(st, rare) == [1.0, 2.0, 4.0]
+    image = SimpleNamespace(image=lambda: (1.0, 2.0))
+    assert learned(st, image) == [1.0, 2.0, 4.0]
+    assert integ.run_notes()["objective"] == "image relMSE x cost"
     own = learned(st, None)
     assert own[0] == own[1] == own[2]
+    assert integ.run_notes()["objective"] == "pixel sample variance x cost"
     one = np.zeros_like(st)
     one[0] = _region_statistics(k, 0.0, n=n, weight=1.0)
     # (f_r = visits / (LEARN_FRACTION x camera samples) = 1)
-    dense = SimpleNamespace(image=lambda: (1.0, 2.0), cost_samples=n / M.LEARN_FRACTION)
-    assert learned(one, dense)[0] == 4.0
+    assert learned(one, image, recorded=n / M.LEARN_FRACTION)[0] == 4.0
 
 
 def test_learning_measures_the_pixels_and_weighs_the_visits():
@@ -263,9 +265,11 @@ def test_learning_measures_the_pixels_and_weighs_the_visits():
     integ = mi.load_dict({**LEARNED, "max_depth": 3})
     mi.render(scene, integrator=integ, spp=1 << 16)
     px = integ.pixels
-    first = int((1 << 16) * M.LEARN_SHARE)         # (the pixels, then the recording passes)
+    # (the pixels, then the recording passes: the second one runs while the decisions move)
+    first = int((1 << 16) * M.LEARN_SHARE)
     pre = int(first * M.LEARN_PIXELS)
     assert px.count == first + 2 * (first - pre) and px.cost_samples == px.count - pre
+    assert integ._recorded == px.cost_samples
     st = integ.grid.statistics()
     w = st[:, M.WEIGHT].sum() / st[:, M.WEIGHT + 1].sum()
     assert st[:, M.WEIGHT + 1].sum() == st[:, len(M.LEARNED_P) + 1].sum()   # (every visit)

@@ -64,8 +64,9 @@ With p(1) = p(2) = 0 (``p_light = 1``) the continuation is the BSDF's own sample
   (mu_l(p), mu_b(p)); between passes each region takes the candidate that makes the *image*
   most efficient (1 / (relMSE x time)): w_r (V(p) + V_rest) + (V / C) (1 + 0.5 p + C_rest)
   (a light sample costs about half a vertex; the argument below).  V(p) = M(p) - S_l(p) /
-  max(p, 1) - mu_b^2 (:func:`allocation_variance`) is the vertex's noise: a region pools many points, and the
-  variation of the mean between them is no noise that light samples could reduce.  S_l(p) =
+  max(p, 1) - mu_b^2 (:func:`allocation_variance`) is the vertex's noise: a region pools many
+  points, and the variation of the mean between them is no noise that light samples could
+  reduce.  S_l(p) =
   E[m_l(x; p)^2], the squared mean over the region's points of the light technique's share at
   a point (m_l(x; p) = int f L_e w_l(p)), is measured per candidate: the product of two
   independent light samples' weighted estimates at each recording vertex
@@ -314,12 +315,18 @@ class MIS3(IntegratorTemplate):
         self._collect = self._weigh = False
         self._pixel = None
         self._spp = 0
+        #: camera samples of the recording passes so far (visits per camera sample, f_r)
+        self._recorded = 0
+        #: the objective the last learn() minimised (for the run record)
+        self._objective = None
 
     # ---- selection=learned: the light-sample probability per region ------------------------
     def scene_warnings(self, scene):
         if self.learned:   # a new scene: learn from scratch
             self.grid = RegionGrid(scene, stats=WEIGHT + 2)
             self.pixels = None
+            self._recorded = 0
+            self._objective = None
             self.settled = False
             self._learn_passes = 0
         return []
@@ -396,6 +403,8 @@ class MIS3(IntegratorTemplate):
         self.settled = False
         self._learn_passes = 0
         self.pixels = None
+        self._recorded = 0
+        self._objective = None
 
     def run_notes(self) -> dict:
         """For the run record: how the light-sample allocation was learned."""
@@ -412,8 +421,8 @@ class MIS3(IntegratorTemplate):
                                                           np.quantile(t, [0.1, 0.5, 0.9])]
         image = self.pixels.image() if self.pixels is not None else None
         # (what the regions' decisions minimised: see "The image's exchange rate")
-        notes["objective"] = "image relMSE x cost" if image is not None else \
-            "pixel sample variance x cost"
+        if self._objective is not None:
+            notes["objective"] = self._objective
         if image is not None:
             notes["image_rel_variance_per_sample"] = round(image[0], 6)
             notes["cost_per_sample"] = round(image[1], 4)
@@ -438,6 +447,8 @@ class MIS3(IntegratorTemplate):
             self.pixels.passed(spp, costed=recording)
         if recording and self._depth == 0:   # (the kernel recorded statistics)
             dr.eval(img)
+            if is_jit():   # (the camera samples of every recording pass: f_r in learn)
+                self._recorded += int(spp) * PixelStats.layout(self._sensor(scene, sensor))
             self.learn()
             self._learn_passes += 1
         return img
@@ -501,7 +512,7 @@ class MIS3(IntegratorTemplate):
             # mean weight of all weighed visits)
             w_r = np.where(weighed > 0, st[:, WEIGHT] / np.maximum(weighed, 1.0),
                            st[:, WEIGHT].sum() / weighed.sum())
-            f_r = np.where(ok, n / (LEARN_FRACTION * self.pixels.cost_samples), 0.0)
+            f_r = np.where(ok, n / (LEARN_FRACTION * max(self._recorded, 1)), 0.0)
             lam = v_img / c_img
             for r in range(LEARN_ROUNDS + 1):
                 arg = choose(w_r[:, None] * (var + v_rest[:, None])
@@ -511,8 +522,10 @@ class MIS3(IntegratorTemplate):
                 dv = float(np.sum(f_r * w_r * (var[rows, arg] - var[rows, u])))
                 dc = float(np.sum(f_r * LIGHT_COST * (cand[arg] - cand[u])))
                 lam = max(v_img + dv, 0.1 * v_img) / max(c_img + dc, 0.1 * c_img)
+            self._objective = "image relMSE x cost"
         else:
             arg = choose((var + v_rest[:, None]) * (cost + c_rest[:, None]))
+            self._objective = "pixel sample variance x cost"
         best = cand[arg]
         table = np.full(len(old), -1.0, dtype=np.float32)
         table[live] = np.where(ok, best, -1.0)
@@ -589,7 +602,7 @@ class MIS3(IntegratorTemplate):
             return
         where, on, cost = track
         if self._pixel is not None:
-            self.pixels.add_cost(cost, dr.full(mi.Bool, True, dr.width(cost)))
+            self.pixels.add_cost(self._pixel, cost)
         value = luminance(L)
         self.grid.add(where, {PATH_STATS: value * value, PATH_STATS + 1: value,
                               PATH_STATS + 2: cost, PATH_STATS + 3: mi.Float(1.0)}, on)

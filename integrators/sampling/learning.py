@@ -106,7 +106,7 @@ class PixelStats:
         self.s1 = dr.zeros(mi.Float, self.n)
         self.s2 = dr.zeros(mi.Float, self.n)
         self.count = 0                 # camera samples per pixel so far
-        self.cost = dr.zeros(mi.Float, 1)
+        self.cost = dr.zeros(mi.Float, self.n)    # (per pixel: no float32 sum of millions)
         self.cost_samples = 0          # camera samples whose cost was added to ``cost``
         self.w = dr.full(mi.Float, 1.0, self.n)
         dr.eval(self.s1, self.s2, self.cost, self.w)
@@ -133,10 +133,10 @@ class PixelStats:
         dr.scatter_add(self.s1, value, pixel)
         dr.scatter_add(self.s2, value * value, pixel)
 
-    def add_cost(self, cost, active):
-        """Camera samples' costs (in the kernel); count them with :meth:`counted`."""
-        dr.scatter_reduce(dr.ReduceOp.Add, self.cost, cost, mi.UInt32(0), active,
-                          mode=dr.ReduceMode.Expand)
+    def add_cost(self, pixel, cost):
+        """Camera samples' costs for their ``pixel`` (in the kernel; counted by
+        :meth:`passed`)."""
+        dr.scatter_add(self.cost, cost, pixel)
 
     def passed(self, spp: int, costed: bool):
         """After a pass of ``spp`` that added to the statistics (and its costs, ``costed``)."""
@@ -159,6 +159,11 @@ class PixelStats:
         s2 = np.array(self.s2, np.float64)
         mean = s1 / n
         var = np.maximum(s2 / n - mean * mean, 0.0) * n / (n - 1)
-        v = float(np.mean(var / (np.maximum(mean, 0.0) ** 2 + self.eps)))
-        c = float(self.cost[0]) / self.cost_samples
+        rel = var / (np.maximum(mean, 0.0) ** 2 + self.eps)
+        ok = np.isfinite(rel)       # (a pixel that saw a NaN or an infinity says nothing)
+        cost = np.array(self.cost, np.float64)
+        if not ok.any() or not np.isfinite(cost).all():
+            return None
+        v = float(np.mean(rel[ok]))
+        c = float(cost.sum()) / self.cost_samples
         return (v, c) if v > 0 and c > 0 else None
