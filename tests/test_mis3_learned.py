@@ -261,6 +261,7 @@ def test_learning_measures_the_pixels_and_weighs_the_visits():
     at most 4 light samples each, 1 + 2 x (1 + LIGHT_COST p) (the recording passes' paths, the
     second with the learned p).  Mutant: ``learned-image-visit-unweighted``."""
     from integrators.plugins import mis3 as M
+    from integrators.sampling.learning import PIXEL_EPS
     scene = mi.load_dict(closed_box_scene(0.5, 1.0))
     integ = mi.load_dict({**LEARNED, "max_depth": 3})
     mi.render(scene, integrator=integ, spp=1 << 16)
@@ -273,7 +274,7 @@ def test_learning_measures_the_pixels_and_weighs_the_visits():
     st = integ.grid.statistics()
     w = st[:, M.WEIGHT].sum() / st[:, M.WEIGHT + 1].sum()
     assert st[:, M.WEIGHT + 1].sum() == st[:, len(M.LEARNED_P) + 1].sum()   # (every visit)
-    assert abs(w * (1.75 ** 2 + M.PIXEL_EPS) - 1.0) < 0.03, w
+    assert abs(w * (1.75 ** 2 + PIXEL_EPS) - 1.0) < 0.03, w
     v, c = px.image()
     assert v > 0 and 3.0 <= c <= 1.0 + 2.0 * (1.0 + M.LIGHT_COST * max(M.LEARNED_P))
 
@@ -301,7 +302,7 @@ def test_pixel_layout_is_mitsubas():
         b = sensor.film().rfilter().border_size() if border else 0
         assert b == (2 if border else 0)
         integ = Lanes(mi.Properties())
-        integ.stats, integ.spp = PixelStats(PixelStats.layout(sensor), 0.01), spp
+        integ.stats, integ.spp = PixelStats(PixelStats.layout(sensor)), spp
         img = np.array(mi.render(scene, integrator=integ, spp=spp))[..., 0]
         w = 7 + 2 * b
         idx = np.arange(w * (5 + 2 * b)).reshape(5 + 2 * b, w)[b:b + 5, b:b + 7]

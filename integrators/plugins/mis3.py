@@ -175,8 +175,6 @@ PAIRS = PATH_STATS + 4
 #: the sum over a region's recording visits of their pixel's weight 1 / (I_p^2 + PIXEL_EPS),
 #: and the number of those visits (the ones recorded once the pixels' means were known)
 WEIGHT = PAIRS + len(LEARNED_P)
-#: relative errors are (x - I_p)^2 / (I_p^2 + PIXEL_EPS): the relMSE of the benchmarks
-PIXEL_EPS = 0.01
 #: visits a region needs before its learned probability replaces the adaptive one
 LEARN_MIN_VISITS = 64
 #: non-zero light samples or emission hits a region needs before it leaves p(3) = 1
@@ -362,14 +360,14 @@ class MIS3(IntegratorTemplate):
         if is_jit() and LEARN_IMAGE:
             n_pix = PixelStats.layout(sensor_obj)
             if self.pixels is None or self.pixels.n != n_pix:
-                self.pixels = PixelStats(n_pix, PIXEL_EPS)
+                self.pixels = PixelStats(n_pix)
             px = self.pixels
         parts = []
 
-        def run(n, s, quiet):
+        def run(n, s, quiet, collect=True):
             # (pixels collected while the image's objective is on; the visits weighted by
             # their pixels once their means are known)
-            self._quiet, self._collect = quiet, px is not None
+            self._quiet, self._collect = quiet, collect and px is not None
             self._weigh = px is not None and px.count > 0
             try:
                 parts.append((n, self._pass(scene, sensor, s % 2 ** 32, n, evaluate)))
@@ -387,12 +385,8 @@ class MIS3(IntegratorTemplate):
                 break
             run(size, seed + (extra + 1) * 2 ** 28, False)
             used += size
-        self._quiet = True    # the rest uses what was learned, records nothing
-        try:
-            parts.append((total - used, self._pass(scene, sensor, (seed + 2 ** 31) % 2 ** 32,
-                                                   total - used, evaluate)))
-        finally:
-            self._quiet = False
+        # the rest uses what was learned, records nothing
+        run(total - used, seed + 2 ** 31, True, collect=False)
         return parts
 
     def reset_learning(self):

@@ -85,12 +85,25 @@ class RegionGrid:
         return self._table.copy()
 
 
+#: relative errors are (x - I_p)^2 / (I_p^2 + PIXEL_EPS), the relMSE of the benchmarks
+#: (benchmarks.metrics.EPS): without it the darkest pixels' relative variance decides everything
+PIXEL_EPS = 0.01
+
+
+def relmse_denominator(mean):
+    """I_p^2 + PIXEL_EPS for pixel means ``mean`` (numpy): what a pixel's squared error is
+    divided by in the relMSE, so 1 / it is the pixel's weight there (EARS's and mis3's
+    learners both weigh by it)."""
+    return np.maximum(mean, 0.0) ** 2 + PIXEL_EPS
+
+
 class PixelStats:
     """Per-pixel statistics of a render so far, for estimators that learn what a decision is
     worth to the *image*: the mean and second moment of each pixel's camera-sample estimates
     (luminance) and the cost of a camera sample.  From them :meth:`weights` gives each pixel's
-    weight in the relMSE, 1 / (I_p^2 + eps) (I_p the pixel's mean so far), and
-    :meth:`ratio` the image's relative variance per unit of cost, V / C: where a decision
+    weight in the relMSE, 1 / (I_p^2 + PIXEL_EPS) (I_p the pixel's mean so far), and
+    :meth:`image` the image's relative variance and cost per camera sample, whose ratio V / C
+    is the exchange rate: where a decision
     changes a pixel sample's variance by dV and its cost by dC, the efficiency of the whole
     image (1 / (V C)) improves iff w_p dV + (V / C) dC < 0, so that is the exchange rate of
     variance against cost that every region's decision should use (the EARS argument, Rath et
@@ -101,8 +114,8 @@ class PixelStats:
     film's crop, plus the filter's border where the film samples it): :meth:`pixel` returns
     that index, or None where the wavefront is not laid out so (then nothing is collected)."""
 
-    def __init__(self, n_pixels: int, eps: float):
-        self.n, self.eps = int(n_pixels), float(eps)
+    def __init__(self, n_pixels: int):
+        self.n = int(n_pixels)
         self.s1 = dr.zeros(mi.Float, self.n)
         self.s2 = dr.zeros(mi.Float, self.n)
         self.count = 0                 # camera samples per pixel so far
@@ -144,7 +157,7 @@ class PixelStats:
         if costed:
             self.cost_samples += int(spp) * self.n
         mean = np.array(self.s1, np.float64) / max(self.count, 1)
-        self.w = mi.Float((1.0 / (np.maximum(mean, 0.0) ** 2 + self.eps)).astype(np.float32))
+        self.w = mi.Float((1.0 / relmse_denominator(mean)).astype(np.float32))
 
     def weights(self):
         return self.w
@@ -159,7 +172,7 @@ class PixelStats:
         s2 = np.array(self.s2, np.float64)
         mean = s1 / n
         var = np.maximum(s2 / n - mean * mean, 0.0) * n / (n - 1)
-        rel = var / (np.maximum(mean, 0.0) ** 2 + self.eps)
+        rel = var / relmse_denominator(mean)
         ok = np.isfinite(rel)       # (a pixel that saw a NaN or an infinity says nothing)
         cost = np.array(self.cost, np.float64)
         if not ok.any() or not np.isfinite(cost).all():

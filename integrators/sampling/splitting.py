@@ -248,7 +248,7 @@ import mitsuba as mi
 import numpy as np
 
 from ..common import depth_limit, emitted, lnot, luminance, record_once, safe_div, widen
-from .learning import RegionGrid
+from .learning import RegionGrid, relmse_denominator
 from .roulette import roulette, throughput_survival
 
 #: bounces whose vertices keep records (statistics of L_r and cost per region); one more
@@ -303,9 +303,6 @@ DIRECT = dr.ReduceMode.Direct
 #: (57 ms with Local, 46 ms without records), whole renders 1.46x nee_path's time instead of
 #: 1.54x; no change where paths are long (the indirect room 1.49x both)
 FLUSH = dr.ReduceMode.Expand
-#: relative errors are (x - I_p)^2 / (I_p^2 + PIXEL_EPS), the relMSE of the benchmarks
-#: (benchmarks.metrics.EPS): without it the darkest pixels' relative variance decides everything
-PIXEL_EPS = 0.01
 
 
 @contextlib.contextmanager
@@ -491,7 +488,7 @@ class EARS:
         if self.forced is not None or not self.learning:
             return
         mean = self.pix_s1 / np.maximum(self.pix_n, 1)
-        ip2 = np.maximum(mean, 0.0) ** 2 + PIXEL_EPS      # the relMSE's denominator
+        ip2 = relmse_denominator(mean)      # the relMSE's denominator
         # E[s2 / spp - mean^2] = sigma^2 (1 - 1/N), the mean taken over all N samples so far
         # (this pass's among them): half the variance after a first pass of 2 spp
         n_all = np.maximum(self.pix_n, 2)
