@@ -99,4 +99,14 @@ MUTANTS = [
     ("ears-plain-without-roulette", "integrators/plugins/nee_path.py",
      'roulette.Roulette.from_params(dict(self.params, rr="throughput")))',
      'roulette.Roulette.from_params(dict(self.params, rr="none")))', _T),
+    # learning never stops: settled passes still record (and the factors move on)
+    ("ears-settled-still-records", _S,
+     "return self.learning and not self.settled and self.forced is None",
+     "return self.learning and self.forced is None",
+     ["test_ears.py::test_learning_settles_then_records_nothing"]),
+    # a new film keeps the settled factors, relative to pixels it does not have
+    ("ears-settled-kept-on-new-film", _S,
+     "            self.settled = False\n            if self.mode in LEARNED_MODES:",
+     "            if self.mode in LEARNED_MODES:",
+     ["test_ears.py::test_learning_settles_then_records_nothing"]),
 ]

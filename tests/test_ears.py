@@ -124,6 +124,37 @@ def test_default_policy_roulette_only(scene_name):
     assert it.ears.passes == 4
 
 
+def test_learning_settles_then_records_nothing(monkeypatch):
+    """Once the median visited cell holds ``SETTLED_COPIES`` copies (after a learned pass)
+    learning stops: the next pass keeps the factors and records nothing, its pixels still
+    counted; the run record says so.  A film of another size learns again from a classic pass
+    (its pixels' values, which the factors are relative to, are not known yet)."""
+    monkeypatch.setattr(splitting, "SETTLED_COPIES", 0.5)
+    scene = mi.load_file(str(ROOT / "scenes" / "ears_dark_bright.xml"), res="16")
+    it = ears(max_depth=6)
+    settled = []
+    for k in range(2):
+        mi.render(scene, integrator=it, spp=32, seed=k)
+        settled.append(it.ears.settled)
+    assert settled == [False, True] and it.ears.mode == "roulette"
+    e = it.ears
+    before = [np.array(g.stats) for g in (e.grid, e.coarse)], np.array(e.grid.decisions)
+    counted = e.pix_n.sum()
+    mi.render(scene, integrator=it, spp=32, seed=2)
+    assert it.stats["mode"] == "roulette" and e.passes == 3
+    for a, g in zip(before[0], (e.grid, e.coarse)):
+        assert np.array_equal(a, np.array(g.stats))
+    assert np.array_equal(before[1], np.array(e.grid.decisions))
+    assert e.pix_n.sum() == counted + 16 * 16 * 32
+    assert it.run_notes()["settled"] is True
+    other = mi.load_dict({"type": "perspective", "film": {"type": "hdrfilm", "width": 8,
+                                                          "height": 8}})
+    other.m_to_world = scene.sensors()[0].world_transform()
+    mi.render(scene, integrator=it, sensor=other, spp=32, seed=3)
+    assert it.stats["mode"] == "classic" and not e.settled
+    assert not np.array_equal(before[0][0], np.array(e.grid.stats))
+
+
 def test_plain_passes_are_nee_path():
     """Once the learned roulette is found not to pay, the passes are ``nee_path``'s own with the
     throughput rule: the same image as ``nee_path rr=throughput`` for the same seed (Cornell box,

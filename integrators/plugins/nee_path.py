@@ -137,6 +137,8 @@ class NEEPath(IntegratorTemplate):
         film = sensor.film()
         film.prepare([])
         self.ears.forced = self.forced_factor
+        if self.ears.mode != "plain":       # (a new film: its pixels measured first)
+            self.ears.film(splitting.Wavefront.film_shape(film))
         if self.forced_factor is not None:      # (tests: factors given, no mode to learn)
             self.ears.mode = self.ears.next_mode()
         if self.ears.mode == "plain":       # (Mitsuba's kernel: no rays counted)
@@ -169,7 +171,7 @@ class NEEPath(IntegratorTemplate):
         if not self.adaptive or self.ears is None:
             return {}
         e = self.ears
-        notes = {"rr": "adaptive", "passes": e.passes, "mode": e.mode}
+        notes = {"rr": "adaptive", "passes": e.passes, "mode": e.mode, "settled": e.settled}
         if e.gain is not None:
             notes["estimated_gain_over_throughput_rule"] = round(float(e.gain), 3)
         return notes
