@@ -106,7 +106,7 @@ MUTANTS = [
      ["test_ears.py::test_learning_settles_then_records_nothing"]),
     # a new film keeps the settled factors, relative to pixels it does not have
     ("ears-settled-kept-on-new-film", _S,
-     "            self.settled = False\n            if self.mode in LEARNED_MODES:",
-     "            if self.mode in LEARNED_MODES:",
+     "            self.settled, self.learned_passes = False, 0\n            if self.mode",
+     "            self.learned_passes = 0\n            if self.mode",
      ["test_ears.py::test_learning_settles_then_records_nothing"]),
 ]

@@ -152,15 +152,25 @@ class NEEPath(IntegratorTemplate):
                 return self.base_render(scene, sensor, seed, spp, develop, evaluate)
             finally:
                 self._plain_call = not outer
-        wave = splitting.Wavefront(self, self.ears, self.max_lanes)
-        mode = self.ears.mode
+        self.ears.passes += 1
         # (the pass's time: only the measured policy uses it)
         timed = self.split_policy == "measured"
-        with splitting.pass_clock() if timed else contextlib.nullcontext([0.0]) as seconds:
-            block = wave.render(scene, sensor, int(seed), spp)
-        if self.ears.learning:
-            self.ears.learn(spp, seconds[0])
-        self.stats = dict(wave.stats, mode=mode)
+        block, stats = None, {}
+        # (a call that starts with nothing learned learns from a first part of its samples and
+        # renders the rest as learned: splitting.EARS.parts)
+        for k, part in enumerate(self.ears.parts(spp)):
+            wave = splitting.Wavefront(self, self.ears, self.max_lanes)
+            mode = self.ears.mode
+            sub_seed = int(seed) if k == 0 else splitting.seed_mix(int(seed), k, 0x5B)
+            with splitting.pass_clock() if timed else contextlib.nullcontext([0.0]) as seconds:
+                block = wave.render(scene, sensor, sub_seed, part, block)
+            if self.ears.learning:
+                self.ears.learn(part, seconds[0])
+            for key, v in wave.stats.items():
+                stats[key] = max(stats.get(key, 0), v) if key == "max_lanes" else \
+                    stats.get(key, 0) + v
+            stats.setdefault("parts", []).append((mode, part))
+        self.stats = dict(stats, mode=mode)
         film.put_block(block)
         return film.develop() if develop else block.tensor()
 

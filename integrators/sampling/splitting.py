@@ -262,12 +262,19 @@ from .roulette import roulette, throughput_survival
 LEARN_DEPTH = 2
 #: copies the scene needs before learned factors replace the throughput rule
 MIN_VISITS = 32
+#: share of a call's samples rendered classic where it starts with nothing learned (the rest
+#: of the call is rendered learned, :meth:`EARS.parts`; 1: the whole call classic)
+FIRST_PART = 0.25
 #: copies the median visited fine cell holds (its statistics as decayed, after a learned pass)
 #: when learning stops: the later passes keep the factors and record nothing (the records cost
 #: 8 % of a roulette pass in the indirect room, 654 ms against 604 ms frozen, for no change in
 #: variance once the cells hold about a hundred copies: relative MSE 0.486 learning, 0.485
 #: frozen, 96 px, 128-spp passes after 128 spp of learning)
 SETTLED_COPIES = 64
+#: learned passes (a call's parts count one each) before learning may stop: the policy and the
+#: statistics recorded under it converge over a few (indirect room, 96 px: 5.43, 5.12, 5.04
+#: continuations per camera sample settled after one, two, three, for the same variance)
+SETTLED_PASSES = 2
 #: weight, in copies, of the parent level's moments in a cell's (fine: its coarse cell's;
 #: coarse: the scene's): a cell's second moment estimated from few heavy-tailed copies reads low
 #: (none of the rare large ones seen), and zero where none was seen
@@ -401,8 +408,10 @@ class EARS:
         self.forced = None
         #: set False to freeze what was learned
         self.learning = True
-        #: set once the cells hold enough copies (``SETTLED_COPIES``): learning stops
+        #: set once the cells hold enough copies (``SETTLED_COPIES``) after ``SETTLED_PASSES``
+        #: learned passes: learning stops
         self.settled = False
+        self.learned_passes = 0
 
     # ---- per-pixel state -----------------------------------------------------------------
     def film(self, shape):
@@ -416,7 +425,7 @@ class EARS:
             self.learned = False
             # (the factors need this film's pixel values: one classic pass measures them; the
             # modes' measured passes were of the other film's pixels)
-            self.settled = False
+            self.settled, self.learned_passes = False, 0
             if self.mode in LEARNED_MODES:
                 self.mode = "classic"
             self.last_pass, self.measured = {}, {}
@@ -425,6 +434,18 @@ class EARS:
         self.pass_cost = 0.0
         self.pass_s2c = dr.zeros(mi.Float, self.shape[0] * self.shape[1])
         self.pass_cost_c = 0.0
+
+    def parts(self, spp: int) -> list:
+        """The samples per pixel of a render call's parts, learning between them.  A call that
+        starts with nothing learned (``classic``) renders ``FIRST_PART`` of its samples (two per
+        pixel at least: one measures no variance) classic, learns, and renders the rest in the
+        mode learned, so that the classic pass, whose samples are the noisiest, is a small
+        share of the image and the learned roulette is tried (and the plain kernel chosen,
+        where it does not pay) within the first call."""
+        if self.mode != "classic" or not self.recording or spp < 4 or FIRST_PART >= 1:
+            return [spp]
+        first = max(2, int(round(spp * FIRST_PART)))
+        return [first, spp - first]
 
     @property
     def recording(self) -> bool:
@@ -508,7 +529,6 @@ class EARS:
     def learn(self, spp: int, seconds: float = 0.0):
         """Factors for the next pass from the statistics so far (see the module docstring);
         ``seconds``: the pass's wall time (the efficiency of its mode, ``next_mode``)."""
-        self.passes += 1
         s1 = np.array(self.pass_s1, np.float64)
         s2 = np.array(self.pass_s2, np.float64)
         cost = self.pass_cost / max(s1.size * spp, 1)
@@ -554,7 +574,9 @@ class EARS:
             dr.eval(grid.stats)
             ok_any |= bool(ok.any())
         # (settled after a learned pass whose cells hold enough copies)
+        self.learned_passes += self.mode in LEARNED_MODES
         self.settled = bool(self.mode in LEARNED_MODES and ok_any and vis_f.size > 0 and
+                            self.learned_passes >= SETTLED_PASSES and
                             np.median(st_f[vis_f, 2]) >= SETTLED_COPIES)
         self.inv_pixel = mi.Float((1.0 / np.sqrt(ip2)).astype(np.float32))
         self.learned = ok_any
@@ -761,8 +783,9 @@ class Wavefront:
             size += 2 * film.rfilter().border_size()
         return int(size[1]), int(size[0])
 
-    def render(self, scene, sensor, seed: int, spp: int):
-        """Render ``spp`` samples per pixel; returns the film's ImageBlock (filled)."""
+    def render(self, scene, sensor, seed: int, spp: int, block=None):
+        """Render ``spp`` samples per pixel into ``block`` (default: a new one of the film's);
+        returns the block."""
         from mitsuba.ad.integrators.common import ADIntegrator
         film = sensor.film()
         h, w = self.film_shape(film)
@@ -772,7 +795,8 @@ class Wavefront:
         demand = min(max(self.ears.lane_demand, 2.0), 2.0 * self.ears.split_max + 1.0)
         batch = self.max_lanes if kernel else max(1, int(self.max_lanes / (1.1 * demand)))
         self._demand = 0.0
-        block = film.create_block()
+        if block is None:
+            block = film.create_block()
         sampler = mi.load_dict({"type": "independent"})
         for b0 in range(0, total, batch):
             n = min(batch, total - b0)
