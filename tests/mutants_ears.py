@@ -109,4 +109,14 @@ MUTANTS = [
      "            self.settled, self.learned_passes = False, 0\n            if self.mode",
      "            self.learned_passes = 0\n            if self.mode",
      ["test_ears.py::test_learning_settles_then_records_nothing"]),
+    # settled after any learned pass, however few copies the cells hold ...
+    ("ears-settled-without-copies", _S,
+     "self.learned_passes >= SETTLED_PASSES and\n"
+     "                            np.median(st_f[vis_f, 2]) >= SETTLED_COPIES)",
+     "self.learned_passes >= SETTLED_PASSES)",
+     ["test_ears.py::test_learning_settles_then_records_nothing"]),
+    # ... or after the first learned pass (the policy and its statistics not converged)
+    ("ears-settled-after-one-pass", _S,
+     "self.learned_passes >= SETTLED_PASSES and", "self.learned_passes >= 1 and",
+     ["test_ears.py::test_learning_settles_then_records_nothing"]),
 ]

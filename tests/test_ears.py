@@ -127,12 +127,18 @@ def test_default_policy_roulette_only(scene_name):
 
 
 def test_learning_settles_then_records_nothing(monkeypatch):
-    """Once the median visited cell holds ``SETTLED_COPIES`` copies (after a learned pass)
-    learning stops: the next pass keeps the factors and records nothing, its pixels still
-    counted; the run record says so.  A film of another size learns again from a classic pass
-    (its pixels' values, which the factors are relative to, are not known yet)."""
-    monkeypatch.setattr(splitting, "SETTLED_COPIES", 0.5)
+    """Once the median visited cell holds ``SETTLED_COPIES`` copies after ``SETTLED_PASSES``
+    (2) learned passes (the first call's learned part counts one) learning stops: the next
+    pass keeps the factors and records nothing, its pixels still counted; the run record says
+    so.  Far from that many copies it goes on.  A film of another size learns again from a
+    classic pass (its pixels' values, which the factors are relative to, are not known yet)."""
     scene = mi.load_file(str(ROOT / "scenes" / "ears_dark_bright.xml"), res="16")
+    monkeypatch.setattr(splitting, "SETTLED_COPIES", 1e6)
+    it = ears(max_depth=6)
+    for k in range(3):
+        mi.render(scene, integrator=it, spp=32, seed=k)
+        assert not it.ears.settled and it.ears.recording
+    monkeypatch.setattr(splitting, "SETTLED_COPIES", 0.5)
     it = ears(max_depth=6)
     settled = []
     for k in range(2):
@@ -192,6 +198,7 @@ def _classic_estimates(scene, passes: int, spp: int, wts):
     out = []
     for k in range(passes):
         it.ears.plain, it.ears.mode = False, "roulette"
+        assert it.ears.recording        # (a settled pass would estimate nothing)
         mi.render(scene, integrator=it, spp=spp, seed=1 + k)
         assert it.stats["mode"] == "roulette"
         n = it.stats["camera_samples"]
@@ -228,8 +235,10 @@ def test_throughput_rule_estimated_on_the_learned_paths(scene_name, monkeypatch)
     without its cross terms."""
     from scipy import stats as sst
     from integrators.testing.stats import DEFAULT_ALPHA, count_check
-    # (first calls classic throughout: the pixel weights' and the classic passes' sums)
+    # (first calls classic throughout: the pixel weights' and the classic passes' sums; every
+    # roulette pass learning, so estimating)
     monkeypatch.setattr(splitting, "FIRST_PART", 1.0)
+    monkeypatch.setattr(splitting, "SETTLED_COPIES", float("inf"))
     scene = mi.load_file(str(ROOT / "scenes" / f"{scene_name}.xml"), res="16")
     wts = _pixel_weights(scene)
     est = _classic_estimates(scene, 16, 256, wts)

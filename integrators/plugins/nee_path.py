@@ -29,10 +29,12 @@ The lecture's estimator with each degree of freedom of its last slide as a param
   default), deeper splits as new lanes of a wavefront (:mod:`integrators.sampling.splitting`),
   at most ``max_lanes`` alive at once.  ``render`` is then this integrator's own (JIT variants
   only), the learned state is kept per scene across passes, and ``stats`` counts the rays it
-  traced.  ``split`` must be 1 then.  Every learned roulette pass also estimates, on its own
+  traced.  ``split`` must be 1 then.  Every learning roulette pass also estimates, on its own
   paths, the throughput rule's variance and cost; where the learned roulette is not worth 1.3x
   the plain kernel's time per unit of work, the render goes on with ``nee_path``'s own kernel
-  and the throughput rule (``stats['mode']`` = ``plain``, rays not counted).
+  and the throughput rule (``stats['mode']`` = ``plain``, rays not counted).  The first render
+  call learns from its first quarter and renders the rest learned (``stats['parts']``);
+  learning stops once the regions hold enough samples (``settled`` in the run record).
 
 With ``heuristic=power, light_selection=uniform, rr=throughput, light_samples=1, split=1`` this is
 the estimator of Mitsuba's built-in ``path`` (tested statistically on the Cornell box).
@@ -166,9 +168,11 @@ class NEEPath(IntegratorTemplate):
                 block = wave.render(scene, sensor, sub_seed, part, block)
             if self.ears.learning:
                 self.ears.learn(part, seconds[0])
-            for key, v in wave.stats.items():
-                stats[key] = max(stats.get(key, 0), v) if key == "max_lanes" else \
-                    stats.get(key, 0) + v
+            for key, v in wave.stats.items():     # (largest or summed over the parts)
+                if key in ("max_lanes", "bounces"):
+                    stats[key] = max(stats.get(key, 0), v)
+                else:
+                    stats[key] = stats.get(key, 0) + v
             stats.setdefault("parts", []).append((mode, part))
         self.stats = dict(stats, mode=mode)
         film.put_block(block)

@@ -52,25 +52,27 @@ Per pixel: the running mean of the pixel estimate (I_p; a filtered value would s
 value over its neighbours, whose variance then looks small) and, from the last pass, its second
 moment and cost.  Between passes (:meth:`EARS.learn`) each region gets its two factors sqrt(M C
 / (V c)) and sqrt(Var C / (V c)); statistics then decay by ``DECAY`` so that what is learned
-follows the changing policy.  Until the scene has ``MIN_VISITS`` copies, and in the first pass,
-a vertex has n = 1 and its copy applies the classic throughput rule after its BSDF sample (from
-``rr_depth`` on, survival min(max(beta) eta^2, 0.95) with the sample's weight in beta), as
-Mitsuba's ``path`` does: applied before the sample, the rule lags one bounce behind and traces a
-fifth more rays (4.5 against 5.5 continuations per camera sample in the indirect room).  The
-learned state lives on the integrator per scene, across the passes of ``render --spp`` or
-``--time``.  Learning stops once the cells hold enough copies (``SETTLED_COPIES`` in the median
-visited fine cell, after a learned pass): the later passes keep the factors and record nothing
-(``EARS.settled``, in the run record), which takes the records' cost out of most of a long
-render (indirect room, 96 px, 512 spp in doubling passes: 1.32x -> 1.42x ``nee_path``'s
-efficiency).  Where the learned roulette ends most copies early (the dark scene with a bright
-light) the cells' counts stay low and learning goes on, as before; a film of another size
-starts again from a classic pass.  The shrinkage replaced two earlier guards against second moments read low: the
-larger of the fine and the coarse cell's roulette factor, and a ``MIN_VISITS`` per cell (below
-it the throughput rule).  With them, ``glass_shade`` at 96 px was 0.12/0.14/0.71x ``nee_path``'s
-efficiency at 32/128/512 spp (relMSE 10-22 against 2.0 at 32 spp: the young table's roulette at
-``rr_min``) and the indirect room 1.01/1.24/1.28x; with the shrinkage (and :meth:`EARS.learn` on
-the cells with copies only, 1.5-3 ms a pass instead of 5) 0.72/0.71/0.76x and 1.28/1.30/1.34x
-(``benchmarks.ears``, 4 repeats, the same seeds).
+follows the changing policy.  Until the scene has ``MIN_VISITS`` copies, and in the first pass (the
+first ``FIRST_PART`` of the first render call, :meth:`EARS.parts`: the rest of that call is
+rendered learned, so these samples, the noisiest, are a small share of the image), a vertex has
+n = 1 and its copy applies the classic throughput rule after its BSDF sample (from ``rr_depth`` on,
+survival min(max(beta) eta^2, 0.95) with the sample's weight in beta), as Mitsuba's ``path`` does:
+applied before the sample, the rule lags one bounce behind and traces a fifth more rays (4.5
+against 5.5 continuations per camera sample in the indirect room).  The learned state lives on the
+integrator per scene, across the passes of ``render --spp`` or ``--time``.  Learning stops once the
+cells hold enough copies (``SETTLED_COPIES`` in the median visited fine cell, after
+``SETTLED_PASSES`` learned passes): the later passes keep the factors and record nothing
+(``EARS.settled``, in the run record), which takes the records' cost out of most of a long render
+(indirect room, 96 px, 512 spp in doubling passes: 1.32x -> 1.42x ``nee_path``'s efficiency, before
+the first call's parts).  Where the learned roulette ends most copies early (the dark scene with a
+bright light) the cells' counts stay low and learning goes on, as before; a film of another size
+starts again from a classic pass.  The shrinkage replaced two earlier guards against second moments
+read low: the larger of the fine and the coarse cell's roulette factor, and a ``MIN_VISITS`` per
+cell (below it the throughput rule).  With them, ``glass_shade`` at 96 px was 0.12/0.14/0.71x
+``nee_path``'s efficiency at 32/128/512 spp (relMSE 10-22 against 2.0 at 32 spp: the young table's
+roulette at ``rr_min``) and the indirect room 1.01/1.24/1.28x; with the shrinkage (and
+:meth:`EARS.learn` on the cells with copies only, 1.5-3 ms a pass instead of 5) 0.72/0.71/0.76x and
+1.28/1.30/1.34x (``benchmarks.ears``, 4 repeats, the same seeds).
 
 **Modes and the policy.**  A pass runs in one of ``MODES``: ``classic`` while nothing is
 learned (the throughput rule, records kept), ``roulette`` (the learned n clamped to one:
@@ -84,8 +86,8 @@ default ``split_depth`` 1); deeper splitting replicates lanes (below).  ``split_
 (``POLICIES``) chooses: ``never`` (roulette only; the default), ``always``, or ``measured``
 (after the classic pass one roulette and one split pass, then the mode of higher measured
 efficiency, 1 / (the pass's relative variance against the current pixel means x its seconds
-per camera sample, less Dr.Jit's compilation: :func:`pass_clock`), renewed by every pass it
-runs; when ``classic`` still competed, one early pass's heavy-tailed variance made it the
+per camera sample, less Dr.Jit's compilation: :func:`pass_clock`), renewed by every learning
+pass it runs; when ``classic`` still competed, one early pass's heavy-tailed variance made it the
 choice in the indirect room; it now runs only while nothing is learned).  Measured side by side
 (96 px, 256 spp in doubling passes, 4 repeats, efficiency relative to ``nee_path
 rr=throughput``; never / always / measured): indirect room 1.33 / 1.30 / 1.15, ajar door
@@ -616,7 +618,7 @@ class EARS:
         """The mode of the next pass (see ``MODES``).  Nothing learned: ``classic``.  Policy
         ``never`` / ``always``: ``roulette`` / ``split``.  ``measured``: each learned mode once
         (roulette, then split), then the one of higher measured efficiency (its estimate
-        renewed by every pass it runs)."""
+        renewed by every learning pass it runs)."""
         if self.forced is not None:
             return "roulette" if self.policy == "never" else "split"
         if self.plain:
@@ -1128,11 +1130,10 @@ class Wavefront:
         return int(longest[0])
 
     def light(self, scene, sel, sampler, si, active):
-        """The light samples at a vertex (:meth:`VertexEstimator.direct`) and their cost, and
-        the BSDF sample drawn with them, and whether the BSDF has a smooth lobe: (L, cost, (BSDF
-        sample, its weight), smooth).  A path that
-        goes on alone continues with that sample (:meth:`continuation`'s ``pre``); the copies
-        of a split vertex draw their own."""
+        """The light samples at a vertex (:meth:`VertexEstimator.direct`) and their cost, the
+        BSDF sample drawn with them, and whether the BSDF has a smooth lobe: (L, cost, (BSDF
+        sample, its weight), smooth).  A path that goes on alone continues with that sample
+        (:meth:`continuation`'s ``pre``); the copies of a split vertex draw their own."""
         bsdf = si.bsdf()
         d = self.integ.vertex.direct(scene, sel, sampler, mi.BSDFContext(), si, bsdf, active)
         smooth = mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
