@@ -232,7 +232,14 @@ learning pass's time in a 64-spp pass.  Not kept: a ``dr.ReduceMode.Local`` flus
 ``Direct`` on the lamp in a glass shade, the indirect room and the ajar door) and survival capped
 at 0.95 or 0.9 where n >= 1, as the throughput rule caps it (indirect room: time 1.47x -> 1.47x
 / 1.41x, relMSE 0.50 -> 0.55 / 0.60 of ``nee_path``'s: the long paths are not where the time
-goes).  The smooth test's BSDF-flags query costs 4 % of the pass; deciding from the lobe the
+goes).  Nor does compacting the megakernel's paths that are still going (tried: at 4 and 8
+bounces, ``dr.compress``, the state gathered, the vertex found again by its ray, a new kernel):
+simulated from the lanes' path lengths it would run 0.68x the packet iterations, measured the
+learned roulette pass took 622-640 ms against 620 ms without it, the classic one 472-632
+against 490 (indirect room, 96 px, 128 spp, learning frozen): the time is not the idle lanes.
+The learned pass's 1.33x ``nee_path``'s time, split up: this kernel in the classic mode 1.04x,
+the factors' lookups and the smoothness query 1.05x, its 1.13x continuation rays, and 1.08x
+left over.  The smooth test's BSDF-flags query costs 4 % of the pass; deciding from the lobe the
 vertex's BSDF sample drew instead would bias the first hit's copies (their number would depend
 on the first copy's own sample).  Per unit of work (rays, a shadow ray counting half) a split
 pass with three replicated bounces cost about 1.7x Mitsuba's megakernel on the LLVM backend
