@@ -90,6 +90,16 @@ class RegionGrid:
 PIXEL_EPS = 0.01
 
 
+def film_shape(film):
+    """(height, width) of the pixels Mitsuba's render lays a pass out over: the film's crop,
+    with the reconstruction filter's border where the film samples it."""
+    h, w = int(film.crop_size()[1]), int(film.crop_size()[0])
+    if film.sample_border():
+        b = 2 * int(film.rfilter().border_size())
+        h, w = h + b, w + b
+    return h, w
+
+
 def relmse_denominator(mean):
     """I_p^2 + PIXEL_EPS for pixel means ``mean`` (numpy): what a pixel's squared error is
     divided by in the relMSE, so 1 / it is the pixel's weight there (EARS's and mis3's
@@ -127,11 +137,8 @@ class PixelStats:
     @staticmethod
     def layout(sensor) -> int:
         """The number of pixels Mitsuba's render lays a pass out over for ``sensor``."""
-        film = sensor.film()
-        size = np.array(film.crop_size(), dtype=np.int64)
-        if film.sample_border():
-            size += 2 * int(film.rfilter().border_size())
-        return int(size[0] * size[1])
+        h, w = film_shape(sensor.film())
+        return h * w
 
     def pixel(self, width: int, spp: int):
         """The pixel of each lane of a wavefront of ``width`` lanes at ``spp`` (or None); the

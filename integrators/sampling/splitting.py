@@ -263,7 +263,7 @@ import mitsuba as mi
 import numpy as np
 
 from ..common import depth_limit, emitted, lnot, luminance, record_once, safe_div, widen
-from .learning import RegionGrid, relmse_denominator
+from .learning import RegionGrid, film_shape, relmse_denominator
 from .roulette import roulette, throughput_survival
 
 #: bounces whose vertices keep records (statistics of L_r and cost per region); one more
@@ -754,16 +754,13 @@ class Wavefront:
         """Camera rays of the samples ``idx`` (sample j of pixel j // spp), as Mitsuba's
         ``sample_rays``: (ray, weight, splatting position, pixel index)."""
         film = sensor.film()
-        size = film.crop_size()
-        border = film.rfilter().border_size()
-        if film.sample_border():
-            size += 2 * border
+        width = film_shape(film)[1]
         pixel = idx // dr.opaque(mi.UInt32, spp)
         pos = mi.Vector2i()
-        pos.y = mi.Int32(pixel // int(size[0]))
-        pos.x = mi.Int32(pixel) - pos.y * int(size[0])
+        pos.y = mi.Int32(pixel // width)
+        pos.x = mi.Int32(pixel) - pos.y * width
         if film.sample_border():
-            pos -= border
+            pos -= film.rfilter().border_size()
         pos += mi.Vector2i(film.crop_offset())
         pos_f = mi.Vector2f(pos) + sampler.next_2d()
         scale = dr.rcp(mi.ScalarVector2f(film.crop_size()))
@@ -783,21 +780,12 @@ class Wavefront:
         return ray, weight, splat, pixel
 
     # ---- the pass ------------------------------------------------------------------------
-    @staticmethod
-    def film_shape(film):
-        """(height, width) of the pixels a pass samples (the filter's border included where
-        the film samples it)."""
-        size = film.crop_size()
-        if film.sample_border():
-            size += 2 * film.rfilter().border_size()
-        return int(size[1]), int(size[0])
-
     def render(self, scene, sensor, seed: int, spp: int, block=None):
         """Render ``spp`` samples per pixel into ``block`` (default: a new one of the film's);
         returns the block."""
         from mitsuba.ad.integrators.common import ADIntegrator
         film = sensor.film()
-        h, w = self.film_shape(film)
+        h, w = film_shape(film)
         self.ears.film((h, w))
         total = w * h * spp
         kernel = self.replicated == 0
