@@ -52,8 +52,12 @@ METHODS = {
     "nee_path_split4": ({"type": "nee_path", "rr": "throughput", "split": 4},
                         "`nee_path`, 4 continuations from the first hit, throughput roulette"),
     "ears": ({"type": "nee_path", "rr": "adaptive"},
-             "`nee_path rr=adaptive` (default `split_policy=never`): EARS's learned roulette at "
-             "every vertex, learned from the render's own earlier passes, one kernel"),
+             "`nee_path rr=adaptive` (default `split_policy=auto`): EARS's learned roulette at "
+             "every vertex, learned from the render's own earlier passes, and splitting at the "
+             "first hit while a split pass estimates that it pays over the roulette"),
+    "ears_never": ({"type": "nee_path", "rr": "adaptive", "split_policy": "never"},
+                   "`nee_path rr=adaptive split_policy=never`: the learned roulette only, "
+                   "one kernel"),
     "ears_split": ({"type": "nee_path", "rr": "adaptive", "split_policy": "always"},
                    "`nee_path rr=adaptive split_policy=always`: EARS roulette and splitting, the "
                    "first hit's copies one after another in the megakernel's lane"),

@@ -82,7 +82,7 @@ MUTANTS = [
     # throughput instead of the classic one (cost read 3-4 % high), the second moment without
     # its cross terms between a path's vertices
     ("ears-classic-estimate-learned-beta", _S,
-     "r = self.classic_survival(beta * (Q * inv_p), eta, depth, pre)",
+     "r = self.classic_survival(beta * rho, eta, depth, pre)",
      "r = self.classic_survival(beta, eta, depth, pre)",
      ["test_ears.py::test_throughput_rule_estimated_on_the_learned_paths"]),
     # ... or, at the vertices that keep the rule in the pass (glass, mirrors, nothing learned),
@@ -94,6 +94,34 @@ MUTANTS = [
     ("ears-classic-estimate-no-cross-terms", _S,
      "Y += lc * (bare * Q + 2.0 * S)", "Y += lc * bare * Q",
      ["test_ears.py::test_throughput_rule_estimated_on_the_learned_paths"]),
+    # split_policy=auto's estimate of the learned roulette on a split pass's first copies:
+    # the first hit's 1/n kept (the roulette's second moment read low), every copy counted
+    # (read high), the throughput rule taken for the learned roulette behind the first hit
+    ("ears-roulette-estimate-copy-weight", _S,
+     "lc = luminance(c) * scale\n", "lc = luminance(c)\n",
+     ["test_ears.py::test_roulette_estimated_on_the_split_paths"]),
+    ("ears-roulette-estimate-every-copy", _S,
+     "on = first if versus else mi.Bool(True)", "on = mi.Bool(True)",
+     ["test_ears.py::test_roulette_estimated_on_the_split_paths"]),
+    ("ears-roulette-estimate-rule-behind", _S,
+     "alive & on, scale, raw if versus else None)", "alive & on, scale, None)",
+     ["test_ears.py::test_roulette_estimated_on_the_split_paths"]),
+    # split_policy=auto: splitting kept whatever the split pass estimated; the plain fallback
+    # decided before splitting was tried; splitting's gain left out of it
+    ("ears-auto-split-kept-regardless", _S,
+     "split = self.split_gain is None or self.split_gain >= SPLIT_COST", "split = True",
+     ["test_ears.py::test_auto_policy_tries_splitting_then_keeps_what_pays"]),
+    ("ears-auto-plain-before-split-trial", _S,
+     "best = KERNEL_COST if ratio >= SPLIT_TRY else 0.0", "best = ratio",
+     ["test_ears.py::test_auto_policy_decisions"]),
+    ("ears-auto-plain-without-split-gain", _S,
+     "best = max(self.gain, self.gain * ratio / SPLIT_COST)", "best = self.gain",
+     ["test_ears.py::test_auto_policy_decisions"]),
+    # the settling's count of learned passes kept across a change of mode
+    ("ears-settled-counts-other-mode", _S,
+     "self.learned_passes = self.learned_passes + 1 if same else 1",
+     "self.learned_passes = self.learned_passes + 1",
+     ["test_ears.py::test_auto_policy_tries_splitting_then_keeps_what_pays"]),
     # the plain passes without roulette (rr=none): unbiased, but not the throughput rule the
     # learned one was compared with (the passes then differ from nee_path's)
     ("ears-plain-without-roulette", "integrators/plugins/nee_path.py",

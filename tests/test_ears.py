@@ -106,14 +106,14 @@ def test_modes_tried_then_measured():
 
 
 @pytest.mark.parametrize("scene_name", ["cornell_box", "ears_dark_bright"])
-def test_default_policy_roulette_only(scene_name):
-    """The default (split_policy=never): the first call classic for a quarter of its samples,
+def test_never_policy_roulette_only(scene_name):
+    """split_policy=never: the first call classic for a quarter of its samples,
     then the learned roulette in one kernel (no replication: no lanes held), and from then on,
     as that roulette part compared them, the learned roulette or the plain kernel with the
     throughput rule, which stays.  In the dark scene around a bright light the learned
     roulette pays, in the Cornell box (light everywhere, paths of similar worth) it does not."""
     scene = mi.load_file(str(ROOT / "scenes" / f"{scene_name}.xml"), res="16")
-    it = ears(max_depth=6)
+    it = ears(max_depth=6, split_policy="never")
     modes, gains = [], []
     for k in range(4):
         mi.render(scene, integrator=it, spp=32, seed=k)
@@ -134,12 +134,12 @@ def test_learning_settles_then_records_nothing(monkeypatch):
     classic pass (its pixels' values, which the factors are relative to, are not known yet)."""
     scene = mi.load_file(str(ROOT / "scenes" / "ears_dark_bright.xml"), res="16")
     monkeypatch.setattr(splitting, "SETTLED_COPIES", 1e6)
-    it = ears(max_depth=6)
+    it = ears(max_depth=6, split_policy="never")
     for k in range(3):
         mi.render(scene, integrator=it, spp=32, seed=k)
         assert not it.ears.settled and it.ears.recording
     monkeypatch.setattr(splitting, "SETTLED_COPIES", 0.5)
-    it = ears(max_depth=6)
+    it = ears(max_depth=6, split_policy="never")
     settled = []
     for k in range(2):
         mi.render(scene, integrator=it, spp=32, seed=k)
@@ -249,6 +249,114 @@ def test_throughput_rule_estimated_on_the_learned_paths(scene_name, monkeypatch)
         assert p >= DEFAULT_ALPHA, (what, est[:, j], ref[:, j], p)
     # (the learned roulette is not the rule here: its own cost is 10 % less in both)
     assert est[:, 2].mean() < 0.95 * ref[:, 0].mean(), (est[:, 2], ref[:, 0])
+
+
+def _alternative_passes(it, scene, mode: str, passes: int, spp: int, wts, seed: int):
+    """Per pass of ``mode`` with the integrator's table as it is (learning patched out, so
+    every pass sees the same factors; the pass still records, so a split pass estimates): the
+    pass's own cost per camera sample and relative second moment, and the estimated ones of
+    its alternative (a split pass: the learned roulette)."""
+    out = []
+    for k in range(passes):
+        it.ears.mode = mode
+        mi.render(scene, integrator=it, spp=spp, seed=seed + k)
+        assert it.stats["mode"] == mode and it.ears.recording
+        n = it.stats["camera_samples"]
+        out.append((it.ears.pass_cost / n, float(np.mean(np.array(it.ears.pass_s2) * wts)) / spp,
+                    it.ears.pass_cost_c / n,
+                    float(np.mean(np.array(it.ears.pass_s2c) * wts)) / spp))
+    return np.array(out)
+
+
+@pytest.mark.parametrize("scene_name", ["ears_indirect_room", "specular_box"])
+def test_roulette_estimated_on_the_split_paths(scene_name, monkeypatch):
+    """What decides splitting under split_policy=auto: a learning split pass estimates, on each
+    lane's first copy, the cost and the second moment the learned roulette (the same table)
+    would have had: the first copy's contributions without the first hit's 1/n, and the
+    survival ratios of the roulette at its larger throughput along the path.  H0: the
+    estimates are unbiased, E[estimate] = what roulette passes with the same table measure.
+    Welch t between 16 split passes' estimates and 16 roulette passes, per quantity at alpha =
+    DEFAULT_ALPHA (16 px, max_depth 8; the indirect room, where the first hit splits about
+    two ways and the copies are rouletted harder behind it, and ``specular_box``, whose glass,
+    mirror and null vertices keep the throughput rule).  Negative controls
+    (tests/mutants_ears.py): the first hit's 1/n kept, every copy counted, the roulette's
+    survival taken for the rule's."""
+    from scipy import stats as sst
+    from integrators.testing.stats import DEFAULT_ALPHA, count_check
+    monkeypatch.setattr(splitting, "FIRST_PART", 1.0)
+    monkeypatch.setattr(splitting, "SETTLED_COPIES", float("inf"))
+    monkeypatch.setattr(splitting, "KERNEL_COST", 0.0)      # (no plain fallback)
+    monkeypatch.setattr(splitting, "SPLIT_TRY", 0.0)
+    scene = mi.load_file(str(ROOT / "scenes" / f"{scene_name}.xml"), res="16")
+    wts = _pixel_weights(scene)
+    it = ears(max_depth=8, split_policy="auto")
+    for k in range(4):              # (classic, roulette, then split passes: a table learned)
+        mi.render(scene, integrator=it, spp=64, seed=k)
+    assert it.ears.learned and it.ears.split_gain is not None
+    monkeypatch.setattr(splitting.EARS, "learn", lambda self, spp, seconds=0.0: None)
+    split = _alternative_passes(it, scene, "split", 16, 256, wts, 100)
+    rl = _alternative_passes(it, scene, "roulette", 16, 256, wts, 200)
+    for j, what in enumerate(("cost", "second moment")):
+        count_check(DEFAULT_ALPHA)
+        p = sst.ttest_ind(split[:, 2 + j], rl[:, j], equal_var=False).pvalue
+        assert p >= DEFAULT_ALPHA, (what, split[:, 2 + j], rl[:, j], p)
+    # (the split pass is not the roulette: it traces more per camera sample)
+    assert split[:, 0].mean() > 1.05 * rl[:, 0].mean(), (split[:, 0], rl[:, 0])
+
+
+def test_auto_policy_tries_splitting_then_keeps_what_pays():
+    """split_policy=auto: classic, then a roulette pass (which estimates the throughput rule),
+    then, where the roulette gains enough, a split pass (which estimates the roulette); the
+    render goes on in the mode the split pass found more efficient, or plain where neither
+    pays.  In the room lit indirectly splitting pays (the first hit's copies share the camera
+    ray and carry most of the variance); in the dark scene around a bright light splitting
+    hardly happens and the roulette is kept."""
+    out = {}
+    for name in ("ears_indirect_room", "ears_dark_bright"):
+        scene = mi.load_file(str(ROOT / "scenes" / f"{name}.xml"), res="24")
+        it = ears()                 # (the default policy)
+        assert it.ears is None or it.ears.policy == "auto"
+        modes, counts = [], []
+        for k in range(4):
+            mi.render(scene, integrator=it, spp=32, seed=k)
+            modes.extend(m for m, _ in it.stats["parts"])
+            counts.append((it.ears.learned_passes, it.ears.settled))
+        out[name] = (modes, counts, it.ears.gain, it.ears.split_gain)
+        assert modes[:3] == ["classic", "roulette", "split"], out
+        # (the split trial is the first learned pass of its mode: learning goes on after it)
+        assert counts[1] == (1, False), out
+    assert out["ears_indirect_room"][0][3:] == ["split"] * 2, out
+    assert out["ears_dark_bright"][0][3:] == ["roulette"] * 2, out
+    assert it.run_notes()["estimated_gain_of_splitting_over_roulette"] < splitting.SPLIT_COST
+
+
+def test_auto_policy_decisions():
+    """split_policy=auto's choice from the two estimated gains (:meth:`EARS.compare`, given
+    relative variances and costs): a roulette gain below ``SPLIT_TRY`` goes plain at once,
+    one between it and ``KERNEL_COST`` tries splitting first; after a split pass, splitting
+    is kept at a gain of ``SPLIT_COST`` or more over the roulette, the roulette below it, and
+    plain where neither is worth ``KERNEL_COST`` over the rule (splitting's gain over the rule
+    being the product, per its kernel's time)."""
+    scene = mi.load_file(str(ROOT / "scenes" / "cornell_box.xml"), res="8")
+    it = ears(max_depth=4)
+    mi.render(scene, integrator=it, spp=4, seed=0)
+
+    def decide(gain, split_gain=None):
+        e = it.ears
+        e.plain, e.gain, e.split_gain, e.learned, e.mode = False, None, None, True, "roulette"
+        e.compare(1.0, 1.0, gain, 1.0)
+        e.mode = e.next_mode()
+        if split_gain is not None and e.mode == "split":
+            e.compare(1.0, 1.0, split_gain, 1.0)
+            e.mode = e.next_mode()
+        return e.mode
+    lo = (splitting.SPLIT_TRY + splitting.KERNEL_COST) / 2
+    assert decide(0.95 * splitting.SPLIT_TRY) == "plain"
+    assert decide(lo) == "split"
+    assert decide(lo, 1.3) == "split"                   # (lo 1.3 / 1.05 > KERNEL_COST)
+    assert decide(lo, 1.0) == "plain"
+    assert decide(1.6, 1.0) == "roulette"
+    assert decide(1.6, 1.1) == "split"
 
 
 def test_closed_box_random_factors_lane_cap():

@@ -22,19 +22,22 @@ The lecture's estimator with each degree of freedom of its last slide as a param
 * **Efficiency-aware roulette and splitting** (``rr=adaptive``, EARS: Rath et al. 2022): at
   every vertex a factor n(x) in [``rr_min``, ``split_max``], learned per region from the earlier
   passes of the same render, decides how many copies continue the path (n < 1: roulette with
-  survival n; n > 1: floor(n) or ceil(n) copies, each weighted 1/n).  By default
-  (``split_policy=never``) n is clamped to one, roulette only, every path in one kernel; with
-  ``always`` (or ``measured``, chosen per render) the first ``split_depth`` vertices split: the
-  first hit's copies one after another in the lane of the same kernel (``split_depth`` 1, the
-  default), deeper splits as new lanes of a wavefront (:mod:`integrators.sampling.splitting`),
-  at most ``max_lanes`` alive at once.  ``render`` is then this integrator's own (JIT variants
-  only), the learned state is kept per scene across passes, and ``stats`` counts the rays it
-  traced.  ``split`` must be 1 then.  Every learning roulette pass also estimates, on its own
-  paths, the throughput rule's variance and cost; where the learned roulette is not worth 1.3x
-  the plain kernel's time per unit of work, the render goes on with ``nee_path``'s own kernel
-  and the throughput rule (``stats['mode']`` = ``plain``, rays not counted).  The first render
-  call learns from its first quarter and renders the rest learned (``stats['parts']``);
-  learning stops once the regions hold enough samples (``settled`` in the run record).
+  survival n; n > 1: floor(n) or ceil(n) copies, each weighted 1/n).  With ``always`` the
+  first ``split_depth`` vertices split: the first hit's copies one after another in the lane
+  of the same kernel (``split_depth`` 1, the default), deeper splits as new lanes of a
+  wavefront (:mod:`integrators.sampling.splitting`), at most ``max_lanes`` alive at once; with
+  ``never`` n is clamped to one, roulette only, every path in one kernel.  ``render`` is then
+  this integrator's own (JIT variants only), the learned state is kept per scene across
+  passes, and ``stats`` counts the rays it traced.  ``split`` must be 1 then.  Every learning
+  roulette pass also estimates, on its own paths, the throughput rule's variance and cost;
+  where the learned roulette is not worth 1.3x the plain kernel's time per unit of work, the
+  render goes on with ``nee_path``'s own kernel and the throughput rule (``stats['mode']`` =
+  ``plain``, rays not counted).  By default (``split_policy=auto``) a split pass follows a
+  roulette pass that gained enough, and estimates on its first copies what the roulette would
+  have given; the render splits while splitting pays, else goes on with roulette only, or
+  plain.  The first render call learns from its first quarter and renders the rest learned
+  (``stats['parts']``); learning stops once the regions hold enough samples (``settled`` in
+  the run record).
 
 With ``heuristic=power, light_selection=uniform, rr=throughput, light_samples=1, split=1`` this is
 the estimator of Mitsuba's built-in ``path`` (tested statistically on the Cornell box).
@@ -75,10 +78,12 @@ class NEEPath(IntegratorTemplate):
               doc="rr=adaptive: vertices from the first hit where a path may split (1: the "
                   "first hit's copies one after another in one kernel; more: by path "
                   "replication); deeper ones use roulette only."),
-        Param("split_policy", "choice", "never", choices=splitting.POLICIES,
+        Param("split_policy", "choice", "auto", choices=splitting.POLICIES,
               doc="rr=adaptive: never (learned roulette only, every path in one kernel), "
                   "always (learned splitting at the first split_depth vertices), measured "
-                  "(one pass of each, then the more efficient as measured in the render)."),
+                  "(one pass of each, then the more efficient as timed in the render), auto "
+                  "(a split pass estimates the roulette on its own paths; splitting kept "
+                  "while it pays)."),
         Param("max_lanes", "int", 1 << 20, min=1 << 10, max=1 << 26,
               doc="rr=adaptive: paths alive at once (bounds memory; split factors are scaled "
                   "down where a bounce would pass it)."),
@@ -116,6 +121,10 @@ class NEEPath(IntegratorTemplate):
                 raise ParameterError(f"nee_path: parameter 'split' = {self.split!r} is invalid "
                                      "with rr=adaptive; allowed: 1 (rr=adaptive splits at every "
                                      "vertex by itself)")
+            if self.split_policy == "auto" and self.split_depth != 1:
+                raise ParameterError(f"nee_path: parameter 'split_depth' = {self.split_depth!r} "
+                                     "is invalid with split_policy=auto; allowed: 1 (auto "
+                                     "estimates the roulette on the first hit's copies)")
             if not is_jit():
                 raise ParameterError(f"nee_path: rr = 'adaptive' needs a JIT variant (llvm_*, "
                                      f"cuda_*), the active variant is {mi.variant()}: its path "
@@ -189,6 +198,8 @@ class NEEPath(IntegratorTemplate):
         notes = {"rr": "adaptive", "passes": e.passes, "mode": e.mode, "settled": e.settled}
         if e.gain is not None:
             notes["estimated_gain_over_throughput_rule"] = round(float(e.gain), 3)
+        if e.split_gain is not None:
+            notes["estimated_gain_of_splitting_over_roulette"] = round(float(e.split_gain), 3)
         return notes
 
     @record_once

@@ -83,7 +83,8 @@ run every path of a batch in one kernel
 (:meth:`Wavefront.roulette_kernel`, Mitsuba's megakernel: the light samples' BSDF sample is
 reused for the continuation, rays are counted per lane) when only the first hit may split (the
 default ``split_depth`` 1); deeper splitting replicates lanes (below).  ``split_policy``
-(``POLICIES``) chooses: ``never`` (roulette only; the default), ``always``, or ``measured``
+(``POLICIES``) chooses: ``auto`` (the default, below), ``never`` (roulette only), ``always``,
+or ``measured``
 (after the classic pass one roulette and one split pass, then the mode of higher measured
 efficiency, 1 / (the pass's relative variance against the current pixel means x its seconds
 per camera sample, less Dr.Jit's compilation: :func:`pass_clock`), renewed by every learning
@@ -97,6 +98,35 @@ difference one pass measures poorly.  The splitting factor scaled by 0.5 or 0.25
 roulette factor as is) did not give a policy better everywhere either (always, scale 1 / 0.5 /
 0.25: indirect room 1.34 / 1.32 / 1.36, glossy 0.99 / 1.03 / 1.04, ajar door 1.04 / 0.88 /
 0.87, glass shade 0.50 / 0.56 / 0.66, roulette only 1.38, 1.04, 0.85, 0.74).
+
+**Policy ``auto``: the roulette estimated on a split pass's paths.**  After the first
+roulette pass (which estimates the throughput rule, below) a split pass runs where the
+roulette gained ``SPLIT_TRY`` or more over the rule, and every learning split pass estimates,
+on its own paths, what a roulette pass with the same table would have cost and how noisy it
+would have been, with the same estimator as the rule's below.  Each lane's first copy is a
+roulette path but for two things: the first hit's weight 1/n where n > 1 (the roulette's
+survival there is one, the copy's weight 1/n: its contributions are counted n times), and
+behind it a throughput n times smaller, so that the deeper vertices survive with the learned
+factor at the copy's throughput where the roulette would use it at n times that (the survival
+ratios along the copy, as for the rule).  The other copies are left out.  The ratio of the
+two efficiencies in the cost model's units (``split_gain``, in the run record) decides: the
+render splits while it is at least ``SPLIT_COST`` (a split pass's time per unit of work is
+1.04-1.06x a roulette pass's: its lanes wait for their packet's most copies), else goes on with
+roulette only, and plain where neither the roulette (``gain``) nor the splitting (``gain``
+``split_gain`` / ``SPLIT_COST``) is worth ``KERNEL_COST``.  Checked against roulette passes
+with the same table (48 px, 128-spp passes after learning; estimated / measured): indirect
+room relative variance 3.264 / 3.26 per camera sample, cost 13.024 / 13.027, splitting's gain
+1.268 / 1.267; heavy mesh 0.976 / 0.976 (roulette kept), ajar door 1.56 / 1.55, glossy scene
+1.22 / 1.22, the dark scene 1.00 (it hardly splits).  A change of mode starts the count of
+learned passes before settling again (the statistics recorded under the other policy are not
+this one's).  Side by side (96 px, 3 repeats, efficiency relative to ``nee_path``, auto /
+never / always, 32/128/512 spp): indirect room 1.20/1.48/1.45, 1.24/1.40/1.48,
+1.24/1.56/1.56; ajar door 0.95/1.07/0.98, 0.82/0.94/0.96, 0.99/1.14/1.14; glossy
+0.96/1.01/0.96, 1.00/0.93/0.98, 1.01/1.10/1.00; heavy mesh 1.23/1.29/1.28, 1.17/1.28/1.30,
+1.03/1.12/1.14.  Splitting pays little over the learned roulette here (1.05-1.15x where it
+pays at all, as the estimates say), and the trial pass and the settling before the
+splitting's statistics have converged (a split table that learned from roulette passes splits
+less: the last pass of a 512-spp render 0.93x ``always``'s efficiency) take most of it.
 
 **The plain fallback: the throughput rule estimated on the learned paths.**  Where the learned
 roulette hardly differs from the throughput rule (direct light and short paths: Veach's MIS
@@ -320,7 +350,20 @@ KERNEL_COST = 1.3
 LEARNED_MODES = ("roulette", "split")
 #: ``split_policy``: ``never`` (roulette only), ``always`` (split once learned), ``measured``
 #: (each learned mode once, then the more efficient as measured)
-POLICIES = ("never", "always", "measured")
+POLICIES = ("never", "always", "measured", "auto")
+#: time per unit of work of a split pass relative to a roulette pass (the first hit's copies
+#: run one after another in a lane, so a SIMD packet waits for its lane of most copies):
+#: measured 1.04-1.06 (heavy mesh, indirect room, 96 px, 128-spp passes after learning,
+#: seconds per (rays, a shadow ray counting half, a camera sample two)).  Policy ``auto``
+#: splits while the split pass's estimated gain over the roulette is at least this
+SPLIT_COST = 1.05
+#: policy ``auto``: the learned roulette's estimated gain over the throughput rule from which a
+#: split pass is tried (below it the render goes on plain, as with ``never``, where the gain
+#: is below ``KERNEL_COST``).  Splitting's estimated gains over the roulette: 1.55 (ajar door),
+#: 1.27 (indirect room), 1.22 (glossy scene), 0.98-1.0 (heavy mesh, dark scene; 48 px, 128-spp
+#: passes after learning); below 1.15 the splitting would have to gain 1.2 or more to pay for
+#: the learned kernel
+SPLIT_TRY = 1.15
 #: atomic scatter-adds (the default may replicate the target per thread, with its size baked
 #: into the kernel: a recompilation whenever a wavefront's width changes)
 DIRECT = dr.ReduceMode.Direct
@@ -392,6 +435,9 @@ class EARS:
         #: the learned roulette's efficiency relative to the throughput rule's, as estimated
         #: from the last roulette pass (:meth:`compare`)
         self.gain = None
+        #: splitting's efficiency relative to the learned roulette's, as estimated from the
+        #: last learning split pass (policy ``auto``, :meth:`compare`)
+        self.split_gain = None
         #: set once the prediction found the learned roulette not worth its kernel: the passes
         #: then run ``plain`` (the integrator's own kernel, the throughput rule, no records)
         self.plain = False
@@ -421,6 +467,8 @@ class EARS:
         #: learned passes: learning stops
         self.settled = False
         self.learned_passes = 0
+        #: the learned mode those passes ran in
+        self.learned_mode = None
 
     # ---- per-pixel state -----------------------------------------------------------------
     def film(self, shape):
@@ -463,11 +511,13 @@ class EARS:
         return self.learning and not self.settled and self.forced is None
 
     # ---- in the kernel -------------------------------------------------------------------
-    def factor(self, si, beta, eta, depth, pixel, sampler, active, split=None, smooth=None):
+    def factor(self, si, beta, eta, depth, pixel, sampler, active, split=None, smooth=None,
+               raw=False):
         """n(x) at the vertex ``si`` reached with throughput ``beta`` (before clamping to the
         lane cap), whether the vertex falls back on the throughput rule, and its cell.  n is
         zero where ``active`` is false.  ``split``: whether n may exceed one (default: in
-        ``split`` passes).  Where nothing is learned n is 1 and the throughput
+        ``split`` passes).  ``raw``: also return the learned roulette factor w f_m before its
+        clamp (linear in beta: what another throughput would get, :meth:`survivals`).  Where nothing is learned n is 1 and the throughput
         rule is applied by the copy after its BSDF sample (:meth:`Wavefront.continuation`), as
         Mitsuba's ``path`` does: the sample's own weight then counts in the survival, and no
         more continuations are traced than the classic roulette traces.  ``smooth``: whether
@@ -475,6 +525,7 @@ class EARS:
         the flags query is a call over the scene's BSDFs, 3 % of a roulette pass)."""
         cell = (self.grid.cell_of(si), self.coarse.cell_of(si))
         classic = mi.Bool(False)
+        n_r = None
         if self.mode == "classic" and self.forced is None:
             n, classic = dr.full(mi.Float, 1.0, dr.width(active)), mi.Bool(True)
         elif self.forced is not None:
@@ -486,7 +537,7 @@ class EARS:
             # already shrunk towards its coarse cell's, see factors)
             f_m = dr.select(fine, f_m, self.coarse.lookup(cell[1], active & lnot(fine)))
             w = luminance(beta) * dr.gather(mi.Float, self.inv_pixel, pixel, active)
-            n = w * f_m
+            n = n_r = w * f_m
             if self.mode == "split" if split is None else split:
                 # (roulette passes clamp n to one: no splitting factor)
                 coarse = dr.gather(mi.Float, self.f_var_coarse, cell[1], active & lnot(fine))
@@ -501,7 +552,10 @@ class EARS:
             classic = (f_m < 0) | lnot(smooth)
             n = dr.select(classic, 1.0, dr.clip(n, self.rr_min, self.split_max))
         beta_nz = dr.any(mi.unpolarized_spectrum(beta) != 0)
-        return dr.select(active & beta_nz, n, 0.0), classic, cell
+        n = dr.select(active & beta_nz, n, 0.0)
+        if raw:
+            return n, classic, cell, (n if n_r is None else n_r)
+        return n, classic, cell
 
     def throughput_roulette(self, beta, eta, depth, classic, sampler, active):
         """The throughput rule after a copy's BSDF sample where its vertex had nothing learned
@@ -521,16 +575,24 @@ class EARS:
         q = throughput_survival(beta * wt, eta * bs.eta)
         return dr.select(depth + 1 >= self.rr_depth, q, 1.0)
 
-    def survivals(self, beta, eta, depth, pre, q, classic, inv_p, Q, active):
-        """The running products 1/P (the pass's survivals) and Q (the throughput rule's inverse
-        survivals) of the estimate of the rule (see the module docstring), past the decision at
-        a vertex reached with ``beta`` (the pass's weights), ``eta``, ``depth``, whose
-        continuation takes the BSDF sample ``pre``: the pass survives with the learned ``q``,
-        or where the vertex is ``classic`` with the rule applied to its own throughput (inside
-        :meth:`Wavefront.continuation`); the rule with itself applied to the classic
-        throughput beta Q / P."""
+    def survivals(self, beta, eta, depth, pre, q, classic, inv_p, Q, active, scale=1.0,
+                  raw=None):
+        """The running products 1/P (the pass's survivals) and Q (the alternative's inverse
+        survivals) of the estimate of an alternative roulette (see the module docstring), past
+        the decision at a vertex reached with ``beta`` (the pass's weights), ``eta``,
+        ``depth``, whose continuation takes the BSDF sample ``pre``: the pass survives with the
+        learned ``q``, or where the vertex is ``classic`` with the rule applied to its own
+        throughput (inside :meth:`Wavefront.continuation`).  The alternative's throughput is
+        beta Q / P ``scale`` (``scale``: the pass's own weight that the alternative does not
+        apply, the first hit's 1/n of a split pass's first copy); the alternative is the
+        throughput rule, or with ``raw`` (the vertex's unclamped roulette factor,
+        :meth:`factor`) the learned roulette, which applies the rule at the same ``classic``
+        vertices."""
         q_pass = dr.select(classic, self.classic_survival(beta, eta, depth, pre), q)
-        r = self.classic_survival(beta * (Q * inv_p), eta, depth, pre)
+        rho = Q * inv_p * scale
+        r = self.classic_survival(beta * rho, eta, depth, pre)
+        if raw is not None:
+            r = dr.select(classic, r, dr.clip(raw * rho, self.rr_min, 1.0))
         ok = active & (q_pass > 0) & (r > 0)
         return (dr.select(ok, inv_p * q_pass, inv_p), dr.select(ok, Q * dr.rcp(r), Q))
 
@@ -582,15 +644,19 @@ class EARS:
             # split itself in pieces that each run the loop)
             dr.eval(grid.stats)
             ok_any |= bool(ok.any())
-        # (settled after a learned pass whose cells hold enough copies)
-        self.learned_passes += self.mode in LEARNED_MODES
+        # (settled after a learned pass whose cells hold enough copies; the passes counted in
+        # the current mode: the statistics recorded under another policy are not this one's)
+        if self.mode in LEARNED_MODES:
+            same = self.mode == self.learned_mode
+            self.learned_passes = self.learned_passes + 1 if same else 1
+            self.learned_mode = self.mode
         self.settled = bool(self.mode in LEARNED_MODES and ok_any and vis_f.size > 0 and
                             self.learned_passes >= SETTLED_PASSES and
                             np.median(st_f[vis_f, 2]) >= SETTLED_COPIES)
         self.inv_pixel = mi.Float((1.0 / np.sqrt(ip2)).astype(np.float32))
         self.learned = ok_any
         self.v_rel, self.cost = v_rel, cost
-        if self.mode == "roulette" and self.pass_cost_c > 0 and v_rel > 0:
+        if self.pass_cost_c > 0 and v_rel > 0:
             # (both relative variances unclamped per pixel: a clamp at zero would bias them
             # differently; the same means, so their difference is the second moments')
             def rel_var(second):
@@ -611,14 +677,25 @@ class EARS:
         self.mode = self.next_mode()
 
     def compare(self, v: float, c: float, v_c: float, c_c: float):
-        """The learned roulette's efficiency relative to the throughput rule's, (v_c c_c) /
-        (v c), from a roulette pass: its relative variance ``v`` and cost ``c`` per camera sample
-        and the throughput rule's, ``v_c`` and ``c_c``, estimated on the same paths
-        (:meth:`Wavefront.roulette_kernel`).  Below ``KERNEL_COST`` the learned roulette does not
-        pay for its kernel: the rest of the render runs ``plain`` (policy ``never`` only)."""
-        v = max(v, 1e-30)
-        self.gain = max(v_c, 0.0) * c_c / (v * c)
-        if self.policy == "never" and self.gain < KERNEL_COST:
+        """The pass's efficiency relative to its alternative's (:attr:`alternative`), (v_c c_c)
+        / (v c): its relative variance ``v`` and cost ``c`` per camera sample and the
+        alternative's, ``v_c`` and ``c_c``, estimated on the same paths
+        (:meth:`Wavefront.roulette_kernel`).  A roulette pass against the throughput rule
+        (``gain``): below ``KERNEL_COST`` the learned roulette does not pay for its kernel, and
+        the rest of the render runs ``plain``.  A split pass against the learned roulette
+        (``split_gain``): below ``SPLIT_COST`` the splitting does not pay for its copies' time,
+        and the render goes on with roulette only."""
+        ratio = max(v_c, 0.0) * c_c / (max(v, 1e-30) * c)
+        if self.mode == "split":
+            self.split_gain = ratio
+            # (the better learned mode against the rule, each per its kernel's time)
+            best = max(self.gain, self.gain * ratio / SPLIT_COST)
+        else:
+            self.gain = best = ratio
+            if self.policy == "auto" and self.split_gain is None:
+                # (splitting not tried yet: tried where the roulette gains enough)
+                best = KERNEL_COST if ratio >= SPLIT_TRY else 0.0
+        if best < KERNEL_COST:
             self.plain = True
 
     def next_mode(self) -> str:
@@ -632,12 +709,30 @@ class EARS:
             return "plain"
         if not self.learned:
             return "classic"
+        if self.policy == "auto":
+            # (the rule estimated first, then splitting tried, kept while it pays)
+            if self.gain is None:
+                return "roulette"
+            split = self.split_gain is None or self.split_gain >= SPLIT_COST
+            return "split" if split else "roulette"
         if self.policy != "measured":
             return "split" if self.policy == "always" else "roulette"
         for m in LEARNED_MODES:
             if m not in self.measured:
                 return m
         return max(LEARNED_MODES, key=lambda m: self.measured[m])
+
+    @property
+    def alternative(self):
+        """What a learning pass of the current mode estimates on its own paths besides itself
+        (:meth:`compare`): a roulette pass of the ``never`` and ``auto`` policies the
+        throughput rule (``"rule"``), a split pass of the ``auto`` policy the learned roulette
+        (``"roulette"``); else None."""
+        if self.mode == "roulette" and self.policy in ("never", "auto"):
+            return "rule"
+        if self.mode == "split" and self.policy == "auto":
+            return "roulette"
+        return None
 
     @staticmethod
     def moments(st: np.ndarray, prior):
@@ -958,25 +1053,31 @@ class Wavefront:
         L_nee, cost, pre, smooth = self.light(scene, sel, sampler, si, alive)
         L += L_nee
         beta, eta, depth = mi.Spectrum(1.0), mi.Float(1.0), mi.UInt32(0)
-        n, classic, cell = ears.factor(si, beta, eta, depth, pixel, sampler, alive,
-                                       smooth=smooth)
+        n, classic, cell, raw = ears.factor(si, beta, eta, depth, pixel, sampler, alive,
+                                            smooth=smooth, raw=True)
         # (without copies, a roulette or classic pass, the loop has no restart code, and
         # without learning no records: 2-3 % of the kernel's time on Veach's MIS scene)
         restarts = self.copies
         if not restarts:
             n = dr.minimum(n, 1.0)
-        # a roulette pass that learns also estimates, on its own paths, the second moment and
-        # the cost of the throughput rule (see the module docstring): per lane, Y (its second
-        # moment), K (its cost), S, and the products 1/P of the learned survivals and Q of the
-        # inverse classic ones
-        predict = learn and ears.mode == "roulette" and ears.policy == "never"
+        # a pass that learns may also estimate, on its own paths, the second moment and the
+        # cost of an alternative (see the module docstring; EARS.alternative): per lane, Y
+        # (its second moment), K (its cost), S, and the products 1/P of the pass's survivals
+        # and Q of the alternative's inverse ones.  A roulette pass estimates the throughput
+        # rule; a split pass the learned roulette, on each lane's first copy, whose weight
+        # 1/n at the first hit (n > 1) the roulette does not apply (``scale``)
+        alt = ears.alternative if learn else None
+        predict = alt is not None
+        versus = alt == "roulette"
+        scale = dr.maximum(n, 1.0) if versus else mi.Float(1.0)
         # (as wide as the loop: unused, they stay in its state, see record_once)
         zero, one = widen(mi.Float(0.0), alive), widen(mi.Float(1.0), alive)
         Y, S, K, inv_p, Q = zero, mi.Float(zero), mi.Float(zero), one, mi.Float(one)
         if predict:
             c0 = luminance(L)
             Y, S, K = c0 * c0, mi.Float(c0), mi.Float(cost)
-            inv_p, Q = ears.survivals(beta, eta, depth, pre, n, classic, inv_p, Q, alive)
+            inv_p, Q = ears.survivals(beta, eta, depth, pre, dr.minimum(n, 1.0), classic, inv_p,
+                                      Q, alive, raw=raw if versus else None)
         # floor(n + u) copies of the first hit's continuation, each weighted 1/n (n < 1:
         # roulette), run one after another in the lane
         copies = mi.UInt32(dr.floor(n + sampler.next_1d()))
@@ -1005,23 +1106,27 @@ class Wavefront:
         # (read-only values stay out of the loop state: a narrow one, such as a literal
         # field of si0 or classic0 in a classic pass, would have the loop recorded twice)
         while dr.hint(active, label="ears kernel",
-                      exclude=[limit, pixel, si0, classic0, w0, blum0]):
+                      exclude=[limit, pixel, si0, classic0, w0, blum0, scale]):
             _, _, si_n, beta, eta, depth, alive, c, k, pre, act, smooth = self.continuation(
                 scene, sel, sampler, si, beta, eta, depth, classic, limit, active, pre,
                 fresh if restarts else None)
             L += c
             cost += k
             traced += dr.select(act, 1, 0)
-            n, classic, cell = ears.factor(si_n, beta, eta, depth, pixel, sampler, alive,
-                                           False, smooth)
+            n, classic, cell, raw = ears.factor(si_n, beta, eta, depth, pixel, sampler, alive,
+                                                False, smooth, raw=True)
             q = dr.minimum(n, 1.0)
             if dr.hint(predict, mode="scalar"):
-                lc = luminance(c)
+                # (a split pass: the first copy only)
+                on = first if versus else mi.Bool(True)
+                lc = luminance(c) * scale
                 bare = lc * inv_p
-                Y += lc * (bare * Q + 2.0 * S)
-                S += bare * Q
-                K += k * safe_div(1.0, inv_p * Q)
-                inv_p, Q = ears.survivals(beta, eta, depth, pre, q, classic, inv_p, Q, alive)
+                Y += dr.select(on, lc * (bare * Q + 2.0 * S), 0.0)
+                S += dr.select(on, bare * Q, 0.0)
+                K += dr.select(on, k * safe_div(1.0, inv_p * Q), 0.0)
+                inv_p2, Q2 = ears.survivals(beta, eta, depth, pre, q, classic, inv_p, Q,
+                                            alive & on, scale, raw if versus else None)
+                inv_p, Q = dr.select(on, inv_p2, inv_p), dr.select(on, Q2, Q)
             alive &= sampler.next_1d() < q
             beta *= copy_weight(q)
             end = active & lnot(alive)
