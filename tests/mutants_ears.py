@@ -92,7 +92,7 @@ MUTANTS = [
      "ok = active & (q_pass > 0) & (r > 0) & lnot(classic)",
      ["test_ears.py::test_throughput_rule_estimated_on_the_learned_paths"]),
     ("ears-classic-estimate-no-cross-terms", _S,
-     "Y += lc * (bare * Q + 2.0 * S)", "Y += lc * bare * Q",
+     "lc * (bare * Q + 2.0 * S)", "lc * bare * Q",
      ["test_ears.py::test_throughput_rule_estimated_on_the_learned_paths"]),
     # split_policy=auto's estimate of the learned roulette on a split pass's first copies:
     # the first hit's 1/n kept (the roulette's second moment read low), every copy counted
@@ -109,13 +109,18 @@ MUTANTS = [
     # split_policy=auto: splitting kept whatever the split pass estimated; the plain fallback
     # decided before splitting was tried; splitting's gain left out of it
     ("ears-auto-split-kept-regardless", _S,
-     "split = self.split_gain is None or self.split_gain >= SPLIT_COST", "split = True",
+     'return "split" if self.split_gain >= SPLIT_COST else "roulette"', 'return "split"',
      ["test_ears.py::test_auto_policy_tries_splitting_then_keeps_what_pays"]),
     ("ears-auto-plain-before-split-trial", _S,
-     "best = KERNEL_COST if ratio >= SPLIT_TRY else 0.0", "best = ratio",
+     'if self.policy == "auto" and self.split_gain is None and ratio >= SPLIT_TRY:',
+     "if False:",
      ["test_ears.py::test_auto_policy_decisions"]),
     ("ears-auto-plain-without-split-gain", _S,
      "best = max(self.gain, self.gain * ratio / SPLIT_COST)", "best = self.gain",
+     ["test_ears.py::test_auto_policy_decisions"]),
+    # ... splitting tried whatever the roulette gained (where no fallback ends the render)
+    ("ears-auto-split-tried-regardless", _S,
+     'return "split" if self.gain >= SPLIT_TRY else "roulette"', 'return "split"',
      ["test_ears.py::test_auto_policy_decisions"]),
     # the settling's count of learned passes kept across a change of mode
     ("ears-settled-counts-other-mode", _S,

@@ -330,7 +330,7 @@ def test_auto_policy_tries_splitting_then_keeps_what_pays():
     assert it.run_notes()["estimated_gain_of_splitting_over_roulette"] < splitting.SPLIT_COST
 
 
-def test_auto_policy_decisions():
+def test_auto_policy_decisions(monkeypatch):
     """split_policy=auto's choice from the two estimated gains (:meth:`EARS.compare`, given
     relative variances and costs): a roulette gain below ``SPLIT_TRY`` goes plain at once,
     one between it and ``KERNEL_COST`` tries splitting first; after a split pass, splitting
@@ -357,6 +357,10 @@ def test_auto_policy_decisions():
     assert decide(lo, 1.0) == "plain"
     assert decide(1.6, 1.0) == "roulette"
     assert decide(1.6, 1.1) == "split"
+    # (without the fallback, a small gain keeps the roulette: no split trial)
+    monkeypatch.setattr(splitting, "KERNEL_COST", 0.0)
+    assert decide(0.95 * splitting.SPLIT_TRY) == "roulette"
+    assert decide(lo) == "split"
 
 
 def test_closed_box_random_factors_lane_cap():
@@ -398,12 +402,13 @@ def test_same_image_as_mitsuba_path_small():
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("policy", ["never", "always"])
+@pytest.mark.parametrize("policy", ["never", "always", "auto"])
 def test_same_image_as_mitsuba_path(cornell, policy, monkeypatch):
     """The learned policy in every batch after the first (the plain fallback held off: there
     the Cornell box would go plain from the third batch, and the plain passes are nee_path's,
-    tested against path elsewhere)."""
+    tested against path elsewhere; auto tries splitting whatever the roulette gained)."""
     monkeypatch.setattr(splitting, "KERNEL_COST", 0.0)
+    monkeypatch.setattr(splitting, "SPLIT_TRY", 0.0)
     it = ears(max_depth=8, split_policy=policy)
     assert_unbiased(cornell, {"type": "path", "max_depth": 8}, it, spp=512, batches=16)
     assert it.ears.learned
@@ -488,7 +493,9 @@ def test_memory_flat_in_spp_with_maximal_splitting():
     ({"max_lanes": 10}, "parameter 'max_lanes' = 10 is invalid"),
     ({"split_depth": 0}, "parameter 'split_depth' = 0 is invalid; allowed: an integer >= 1"),
     ({"split_policy": "sometimes"}, "parameter 'split_policy' = 'sometimes' is invalid"),
-    ({"split": 4}, "parameter 'split' = 4 is invalid with rr=adaptive; allowed: 1")])
+    ({"split": 4}, "parameter 'split' = 4 is invalid with rr=adaptive; allowed: 1"),
+    ({"split_depth": 2}, "parameter 'split_depth' = 2 is invalid with split_policy=auto (the "
+                         "default); allowed: 1, or split_policy always, never or measured")])
 def test_bad_parameters_one_line(kw, needle):
     # Mitsuba wraps a plugin's exception; the plugin's own message is one line
     with pytest.raises(Exception) as e:
@@ -636,7 +643,7 @@ def test_specular_box_same_image_as_path(specular_box, specular_box_path, how, m
     takes 4096 spp).  The plain fallback is held off: the learned roulette in every batch."""
     monkeypatch.setattr(splitting, "KERNEL_COST", 0.0)
     if how == "learned":
-        it = ears(max_depth=6)
+        it = ears(max_depth=6, split_policy="never")
         spp, block = 4096, 12
     else:
         it = ears(max_depth=6, split_policy="always")

@@ -147,7 +147,7 @@ splitting.KERNEL_COST = 0.0     # (the learned roulette's scale is compared: no 
 for v in ("llvm_ad_spectral", "llvm_ad_rgb"):
     integrators.set_variant(v)
     scene = mi.load_file(%r, res="16")
-    integ = mi.load_dict({"type": "nee_path", "rr": "adaptive"})
+    integ = mi.load_dict({"type": "nee_path", "rr": "adaptive", "split_policy": "never"})
     for k in range(4):      # the last pass runs with what the first three learned
         mi.render(scene, integrator=integ, spp=64, seed=k)
     st = integ.stats

@@ -26,7 +26,8 @@ The lecture's estimator with each degree of freedom of its last slide as a param
   first ``split_depth`` vertices split: the first hit's copies one after another in the lane
   of the same kernel (``split_depth`` 1, the default), deeper splits as new lanes of a
   wavefront (:mod:`integrators.sampling.splitting`), at most ``max_lanes`` alive at once; with
-  ``never`` n is clamped to one, roulette only, every path in one kernel.  ``render`` is then
+  ``never`` n is clamped to one, roulette only, every path in one kernel; ``measured`` times a
+  pass of each and keeps the faster to a given error.  ``render`` is then
   this integrator's own (JIT variants only), the learned state is kept per scene across
   passes, and ``stats`` counts the rays it traced.  ``split`` must be 1 then.  Every learning
   roulette pass also estimates, on its own paths, the throughput rule's variance and cost;
@@ -77,7 +78,7 @@ class NEEPath(IntegratorTemplate):
         Param("split_depth", "int", 1, min=1, max=64,
               doc="rr=adaptive: vertices from the first hit where a path may split (1: the "
                   "first hit's copies one after another in one kernel; more: by path "
-                  "replication); deeper ones use roulette only."),
+                  "replication, not with split_policy=auto); deeper ones use roulette only."),
         Param("split_policy", "choice", "auto", choices=splitting.POLICIES,
               doc="rr=adaptive: never (learned roulette only, every path in one kernel), "
                   "always (learned splitting at the first split_depth vertices), measured "
@@ -123,8 +124,10 @@ class NEEPath(IntegratorTemplate):
                                      "vertex by itself)")
             if self.split_policy == "auto" and self.split_depth != 1:
                 raise ParameterError(f"nee_path: parameter 'split_depth' = {self.split_depth!r} "
-                                     "is invalid with split_policy=auto; allowed: 1 (auto "
-                                     "estimates the roulette on the first hit's copies)")
+                                     "is invalid with split_policy=auto (the default); "
+                                     "allowed: 1, or split_policy always, never or measured "
+                                     "(auto estimates the roulette on the first hit's copies, "
+                                     "which run in one kernel only with split_depth 1)")
             if not is_jit():
                 raise ParameterError(f"nee_path: rr = 'adaptive' needs a JIT variant (llvm_*, "
                                      f"cuda_*), the active variant is {mi.variant()}: its path "
@@ -191,7 +194,8 @@ class NEEPath(IntegratorTemplate):
     def run_notes(self) -> dict:
         """For the run record (rr=adaptive): the passes, the mode they now run in and the
         learned roulette's efficiency against the throughput rule as a roulette pass estimated
-        it (what sent the render to the plain kernel, or kept it learning)."""
+        it (what sent the render to the plain kernel, or kept it learning), and splitting's
+        against the roulette as a split pass estimated it (``auto``: what kept or ended it)."""
         if not self.adaptive or self.ears is None:
             return {}
         e = self.ears

@@ -33,52 +33,53 @@ indirectly): ``split_max`` bounds it there (4 by default).
 
 **What is learned, and where.**  Per region of two
 :class:`~integrators.sampling.learning.RegionGrid` (position and normal octant, a fine one and a
-coarse one, the coarse one's factors used where the fine cell has no copies): sums of L_r,
-L_r^2, the cost of a copy and the count of copies, from the copies made in the first
-``LEARN_DEPTH`` bounces.  A cell's moments are shrunk towards its parent's (a coarse cell's
-towards the whole scene's, a fine cell's towards its coarse cell's) with the weight of
-``PRIOR_VISITS`` copies, (sum + PRIOR_VISITS x parent) / (count + PRIOR_VISITS)
-(:meth:`EARS.moments`): where the light a vertex reflects comes from rare paths (light through
-glass: next-event estimation blocked, every contribution a rare BSDF-sampled path), a cell that
-has seen none of them reads a second moment of zero, and its factor would be ``rr_min`` at every
-vertex, roulette compounding to weights of 10^k; shrunk, it keeps the part of the scene's second
-moment its few copies cannot rule out, and a cell of many copies its own.  Every such copy has a
-*record*; each lane keeps, per record of its ancestors, what it has added since that record was
-made (registers, no memory traffic per bounce), and hands it to the records when it ends or
-splits (the copies start from zero), so when a batch is finished each record holds its copy's
-beta_copy L_r and cost.  In the one-kernel passes (below) the records are registers of the lane
-itself (:func:`records_start`, :func:`records_add`), scattered to the grids when the path ends.
-Per pixel: the running mean of the pixel estimate (I_p; a filtered value would spread a light's
-value over its neighbours, whose variance then looks small) and, from the last pass, its second
-moment and cost.  Between passes (:meth:`EARS.learn`) each region gets its two factors sqrt(M C
-/ (V c)) and sqrt(Var C / (V c)); statistics then decay by ``DECAY`` so that what is learned
-follows the changing policy.  Until the scene has ``MIN_VISITS`` copies, and in the first pass (the
-first ``FIRST_PART`` of the first render call, :meth:`EARS.parts`: the rest of that call is
-rendered learned, so these samples, the noisiest, are a small share of the image), a vertex has
-n = 1 and its copy applies the classic throughput rule after its BSDF sample (from ``rr_depth`` on,
-survival min(max(beta) eta^2, 0.95) with the sample's weight in beta), as Mitsuba's ``path`` does:
-applied before the sample, the rule lags one bounce behind and traces a fifth more rays (4.5
-against 5.5 continuations per camera sample in the indirect room).  The learned state lives on the
-integrator per scene, across the passes of ``render --spp`` or ``--time``.  Learning stops once the
-cells hold enough copies (``SETTLED_COPIES`` in the median visited fine cell, after
-``SETTLED_PASSES`` learned passes): the later passes keep the factors and record nothing
-(``EARS.settled``, in the run record), which takes the records' cost out of most of a long render
-(indirect room, 96 px, 512 spp in doubling passes: 1.32x -> 1.42x ``nee_path``'s efficiency, before
-the first call's parts).  Where the learned roulette ends most copies early (the dark scene with a
-bright light) the cells' counts stay low and learning goes on, as before; a film of another size
-starts again from a classic pass.  The shrinkage replaced two earlier guards against second moments
-read low: the larger of the fine and the coarse cell's roulette factor, and a ``MIN_VISITS`` per
-cell (below it the throughput rule).  With them, ``glass_shade`` at 96 px was 0.12/0.14/0.71x
-``nee_path``'s efficiency at 32/128/512 spp (relMSE 10-22 against 2.0 at 32 spp: the young table's
-roulette at ``rr_min``) and the indirect room 1.01/1.24/1.28x; with the shrinkage (and
-:meth:`EARS.learn` on the cells with copies only, 1.5-3 ms a pass instead of 5) 0.72/0.71/0.76x and
-1.28/1.30/1.34x (``benchmarks.ears``, 4 repeats, the same seeds).
+coarse one, the coarse one's factors used where the fine cell has no copies): sums of L_r, L_r^2,
+the cost of a copy and the count of copies, from the copies made in the first ``LEARN_DEPTH``
+bounces.  A cell's moments are shrunk towards its parent's (a coarse cell's towards the whole
+scene's, a fine cell's towards its coarse cell's) with the weight of ``PRIOR_VISITS`` copies, (sum
++ PRIOR_VISITS x parent) / (count + PRIOR_VISITS) (:meth:`EARS.moments`): where the light a vertex
+reflects comes from rare paths (light through glass: next-event estimation blocked, every
+contribution a rare BSDF-sampled path), a cell that has seen none of them reads a second moment of
+zero, and its factor would be ``rr_min`` at every vertex, roulette compounding to weights of 10^k;
+shrunk, it keeps the part of the scene's second moment its few copies cannot rule out, and a cell
+of many copies its own.  Every such copy has a *record*; each lane keeps, per record of its
+ancestors, what it has added since that record was made (registers, no memory traffic per bounce),
+and hands it to the records when it ends or splits (the copies start from zero), so when a batch is
+finished each record holds its copy's beta_copy L_r and cost.  In the one-kernel passes (below) the
+records are registers of the lane itself (:func:`records_start`, :func:`records_add`), scattered to
+the grids when the path ends. Per pixel: the running mean of the pixel estimate (I_p; a filtered
+value would spread a light's value over its neighbours, whose variance then looks small) and, from
+the last pass, its second moment and cost.  Between passes (:meth:`EARS.learn`) each region gets
+its two factors sqrt(M C / (V c)) and sqrt(Var C / (V c)); statistics then decay by ``DECAY`` so
+that what is learned follows the changing policy.  Until the scene has ``MIN_VISITS`` copies, and
+in the first pass (the first ``FIRST_PART`` of the first render call, :meth:`EARS.parts`: the rest
+of that call is rendered learned, so these samples, the noisiest, are a small share of the image),
+a vertex has n = 1 and its copy applies the classic throughput rule after its BSDF sample (from
+``rr_depth`` on, survival min(max(beta) eta^2, 0.95) with the sample's weight in beta), as
+Mitsuba's ``path`` does: applied before the sample, the rule lags one bounce behind and traces a
+fifth more rays (4.5 against 5.5 continuations per camera sample in the indirect room).  The
+learned state lives on the integrator per scene, across the passes of ``render --spp`` or
+``--time``.  Learning stops once the cells hold enough copies (``SETTLED_COPIES`` in the median
+visited fine cell, after ``SETTLED_PASSES`` learned passes in the same mode): the later passes keep
+the factors and record nothing (``EARS.settled``, in the run record), which takes the records' cost
+out of most of a long render (indirect room, 96 px, 512 spp in doubling passes: 1.32x -> 1.42x
+``nee_path``'s efficiency, before the first call's parts).  Where the learned roulette ends most
+copies early (the dark scene with a bright light) the cells' counts stay low and learning goes on,
+as before; a film of another size starts again from a classic pass.  The shrinkage replaced two
+earlier guards against second moments read low: the larger of the fine and the coarse cell's
+roulette factor, and a ``MIN_VISITS`` per cell (below it the throughput rule).  With them,
+``glass_shade`` at 96 px was 0.12/0.14/0.71x ``nee_path``'s efficiency at 32/128/512 spp (relMSE
+10-22 against 2.0 at 32 spp: the young table's roulette at ``rr_min``) and the indirect room
+1.01/1.24/1.28x; with the shrinkage (and :meth:`EARS.learn` on the cells with copies only, 1.5-3 ms
+a pass instead of 5) 0.72/0.71/0.76x and 1.28/1.30/1.34x (``benchmarks.ears``, 4 repeats, the same
+seeds).
 
 **Modes and the policy.**  A pass runs in one of ``MODES``: ``classic`` while nothing is
 learned (the throughput rule, records kept), ``roulette`` (the learned n clamped to one:
 survival n where n < 1, no copies), ``split`` (the learned n, splitting at the first
 ``split_depth`` vertices) and ``plain`` (the throughput rule in the integrator's own kernel,
-once a roulette pass estimated that the learned roulette does not pay; below).  The first three
+once a roulette or, under ``auto``, a split pass estimated that learning does not pay; below).
+The first three
 run every path of a batch in one kernel
 (:meth:`Wavefront.roulette_kernel`, Mitsuba's megakernel: the light samples' BSDF sample is
 reused for the continuation, rays are counted per lane) when only the first hit may split (the
@@ -132,10 +133,11 @@ less: the last pass of a 512-spp render 0.93x ``always``'s efficiency) take most
 roulette hardly differs from the throughput rule (direct light and short paths: Veach's MIS
 scene, where it traces the continuations the rule traces) or gains less than its kernel costs
 (the records, the factors' lookups and the pixel statistics: ``KERNEL_COST``, 1.3x the plain
-kernel's time per unit of work), learning loses.  So every roulette pass of the default policy
-also estimates, on its own paths, what the throughput rule would have cost and how noisy it
-would have been, and :meth:`EARS.compare` takes the ratio of the efficiencies.  Below
-``KERNEL_COST`` the rest of the render runs ``plain``: the integrator's own kernel (Mitsuba's
+kernel's time per unit of work), learning loses.  So every roulette pass of the ``never``
+and ``auto`` policies also estimates, on its own paths, what the throughput rule would have
+cost and how noisy it would have been, and :meth:`EARS.compare` takes the ratio of the
+efficiencies.  Below ``KERNEL_COST`` (under ``auto`` where splitting, when tried, does not pay
+either; above) the rest of the render runs ``plain``: the integrator's own kernel (Mitsuba's
 megakernel, ``nee_path`` with the throughput rule, no records), for good.  The estimate is
 exact in expectation, not a first-order model.  Along a path let q_a be the learned survival
 at vertex a and r_a the rule's (applied to the continuation's BSDF sample and to the
@@ -310,7 +312,9 @@ FIRST_PART = 0.25
 #: variance once the cells hold about a hundred copies: relative MSE 0.486 learning, 0.485
 #: frozen, 96 px, 128-spp passes after 128 spp of learning)
 SETTLED_COPIES = 64
-#: learned passes (a call's parts count one each) before learning may stop: the policy and the
+#: learned passes in a row in the same mode (a call's parts count one each; a change of mode,
+#: ``auto``'s split trial or ``measured``'s alternation, starts again from one) before learning
+#: may stop: the policy and the
 #: statistics recorded under it converge over a few (indirect room, 96 px: 5.43, 5.12, 5.04
 #: continuations per camera sample settled after one, two, three, for the same variance)
 SETTLED_PASSES = 2
@@ -349,7 +353,8 @@ KERNEL_COST = 1.3
 #: the choice in the indirect room, at 0.76x the efficiency of roulette)
 LEARNED_MODES = ("roulette", "split")
 #: ``split_policy``: ``never`` (roulette only), ``always`` (split once learned), ``measured``
-#: (each learned mode once, then the more efficient as measured)
+#: (each learned mode once, then the more efficient as timed), ``auto`` (a split pass after the
+#: first roulette pass estimates the roulette: split while it pays; the default)
 POLICIES = ("never", "always", "measured", "auto")
 #: time per unit of work of a split pass relative to a roulette pass (the first hit's copies
 #: run one after another in a lane, so a SIMD packet waits for its lane of most copies):
@@ -464,7 +469,7 @@ class EARS:
         #: set False to freeze what was learned
         self.learning = True
         #: set once the cells hold enough copies (``SETTLED_COPIES``) after ``SETTLED_PASSES``
-        #: learned passes: learning stops
+        #: learned passes in the same mode: learning stops
         self.settled = False
         self.learned_passes = 0
         #: the learned mode those passes ran in
@@ -485,7 +490,9 @@ class EARS:
             self.settled, self.learned_passes = False, 0
             if self.mode in LEARNED_MODES:
                 self.mode = "classic"
+            # (nor are the modes' measured passes and estimated gains this film's)
             self.last_pass, self.measured = {}, {}
+            self.gain = self.split_gain = None
         self.pass_s1 = dr.zeros(mi.Float, self.shape[0] * self.shape[1])
         self.pass_s2 = dr.zeros(mi.Float, self.shape[0] * self.shape[1])
         self.pass_cost = 0.0
@@ -517,10 +524,11 @@ class EARS:
         lane cap), whether the vertex falls back on the throughput rule, and its cell.  n is
         zero where ``active`` is false.  ``split``: whether n may exceed one (default: in
         ``split`` passes).  ``raw``: also return the learned roulette factor w f_m before its
-        clamp (linear in beta: what another throughput would get, :meth:`survivals`).  Where nothing is learned n is 1 and the throughput
-        rule is applied by the copy after its BSDF sample (:meth:`Wavefront.continuation`), as
-        Mitsuba's ``path`` does: the sample's own weight then counts in the survival, and no
-        more continuations are traced than the classic roulette traces.  ``smooth``: whether
+        clamp (linear in beta: what another throughput would get, :meth:`survivals`).  Where
+        nothing is learned n is 1 and the throughput rule is applied by the copy after its BSDF
+        sample (:meth:`Wavefront.continuation`), as Mitsuba's ``path`` does: the sample's own
+        weight then counts in the survival, and no more continuations are traced than the
+        classic roulette traces.  ``smooth``: whether
         the vertex's BSDF has a smooth lobe, where the caller knows it (:meth:`Wavefront.light`:
         the flags query is a call over the scene's BSDFs, 3 % of a roulette pass)."""
         cell = (self.grid.cell_of(si), self.coarse.cell_of(si))
@@ -684,17 +692,23 @@ class EARS:
         (``gain``): below ``KERNEL_COST`` the learned roulette does not pay for its kernel, and
         the rest of the render runs ``plain``.  A split pass against the learned roulette
         (``split_gain``): below ``SPLIT_COST`` the splitting does not pay for its copies' time,
-        and the render goes on with roulette only."""
+        and the render goes on with roulette only.  Policy ``auto`` waits, where the roulette
+        gains ``SPLIT_TRY`` or more, for the split pass's estimate, and goes plain where
+        neither the roulette nor the splitting (gain x split_gain / ``SPLIT_COST``) is worth
+        ``KERNEL_COST`` over the rule."""
         ratio = max(v_c, 0.0) * c_c / (max(v, 1e-30) * c)
         if self.mode == "split":
             self.split_gain = ratio
+            if self.gain is None:       # (no roulette pass estimated the rule: no fallback)
+                return
             # (the better learned mode against the rule, each per its kernel's time)
             best = max(self.gain, self.gain * ratio / SPLIT_COST)
         else:
             self.gain = best = ratio
-            if self.policy == "auto" and self.split_gain is None:
-                # (splitting not tried yet: tried where the roulette gains enough)
-                best = KERNEL_COST if ratio >= SPLIT_TRY else 0.0
+            if self.policy == "auto" and self.split_gain is None and ratio >= SPLIT_TRY:
+                # (splitting not tried yet, and tried where the roulette gains enough: the
+                # fallback waits for its estimate)
+                return
         if best < KERNEL_COST:
             self.plain = True
 
@@ -702,7 +716,10 @@ class EARS:
         """The mode of the next pass (see ``MODES``).  Nothing learned: ``classic``.  Policy
         ``never`` / ``always``: ``roulette`` / ``split``.  ``measured``: each learned mode once
         (roulette, then split), then the one of higher measured efficiency (its estimate
-        renewed by every learning pass it runs)."""
+        renewed by every learning pass it runs).  ``auto``: roulette until a roulette pass
+        estimated the rule, then split where that gain is ``SPLIT_TRY`` or more, then split
+        while the split passes estimate a gain of ``SPLIT_COST`` or more over the roulette,
+        else roulette (plain, :meth:`compare`, before any of these)."""
         if self.forced is not None:
             return "roulette" if self.policy == "never" else "split"
         if self.plain:
@@ -710,11 +727,13 @@ class EARS:
         if not self.learned:
             return "classic"
         if self.policy == "auto":
-            # (the rule estimated first, then splitting tried, kept while it pays)
+            # (the rule estimated first, then splitting tried where the roulette gained
+            # enough, and kept while it pays)
             if self.gain is None:
                 return "roulette"
-            split = self.split_gain is None or self.split_gain >= SPLIT_COST
-            return "split" if split else "roulette"
+            if self.split_gain is None:
+                return "split" if self.gain >= SPLIT_TRY else "roulette"
+            return "split" if self.split_gain >= SPLIT_COST else "roulette"
         if self.policy != "measured":
             return "split" if self.policy == "always" else "roulette"
         for m in LEARNED_MODES:
