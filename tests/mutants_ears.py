@@ -122,6 +122,10 @@ MUTANTS = [
     ("ears-auto-split-tried-regardless", _S,
      'return "split" if self.gain >= SPLIT_TRY else "roulette"', 'return "split"',
      ["test_ears.py::test_auto_policy_decisions"]),
+    # the estimated gains of the other film's passes kept when the film changes
+    ("ears-gains-kept-on-new-film", _S,
+     "            self.gain = self.split_gain = None\n", "",
+     ["test_ears.py::test_learning_settles_then_records_nothing"]),
     # the settling's count of learned passes kept across a change of mode
     ("ears-settled-counts-other-mode", _S,
      "self.learned_passes = self.learned_passes + 1 if same else 1",

@@ -161,6 +161,10 @@ def test_learning_settles_then_records_nothing(monkeypatch):
     mi.render(scene, integrator=it, sensor=other, spp=32, seed=3)
     assert it.stats["parts"][0][0] == "classic" and not e.settled
     assert not np.array_equal(before[0][0], np.array(e.grid.stats))
+    # (nor are the estimated gains, from the other film's pixels, kept)
+    e.split_gain = 2.0
+    e.film((4, 4))
+    assert e.gain is None and e.split_gain is None
 
 
 def test_plain_passes_are_nee_path():
