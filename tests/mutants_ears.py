@@ -112,15 +112,14 @@ MUTANTS = [
      'return "split" if self.split_gain >= SPLIT_COST else "roulette"', 'return "split"',
      ["test_ears.py::test_auto_policy_tries_splitting_then_keeps_what_pays"]),
     ("ears-auto-plain-before-split-trial", _S,
-     'if self.policy == "auto" and self.split_gain is None and ratio >= SPLIT_TRY:',
-     "if False:",
+     "            if self.split_pending:      #", "            if False:      #",
      ["test_ears.py::test_auto_policy_decisions"]),
     ("ears-auto-plain-without-split-gain", _S,
      "best = max(self.gain, self.gain * ratio / SPLIT_COST)", "best = self.gain",
      ["test_ears.py::test_auto_policy_decisions"]),
     # ... splitting tried whatever the roulette gained (where no fallback ends the render)
     ("ears-auto-split-tried-regardless", _S,
-     'return "split" if self.gain >= SPLIT_TRY else "roulette"', 'return "split"',
+     'return "split" if self.split_pending else "roulette"', 'return "split"',
      ["test_ears.py::test_auto_policy_decisions"]),
     # the estimated gains of the other film's passes kept when the film changes
     ("ears-gains-kept-on-new-film", _S,

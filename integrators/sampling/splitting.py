@@ -705,9 +705,7 @@ class EARS:
             best = max(self.gain, self.gain * ratio / SPLIT_COST)
         else:
             self.gain = best = ratio
-            if self.policy == "auto" and self.split_gain is None and ratio >= SPLIT_TRY:
-                # (splitting not tried yet, and tried where the roulette gains enough: the
-                # fallback waits for its estimate)
+            if self.split_pending:      # (the fallback waits for the split pass's estimate)
                 return
         if best < KERNEL_COST:
             self.plain = True
@@ -732,7 +730,7 @@ class EARS:
             if self.gain is None:
                 return "roulette"
             if self.split_gain is None:
-                return "split" if self.gain >= SPLIT_TRY else "roulette"
+                return "split" if self.split_pending else "roulette"
             return "split" if self.split_gain >= SPLIT_COST else "roulette"
         if self.policy != "measured":
             return "split" if self.policy == "always" else "roulette"
@@ -740,6 +738,13 @@ class EARS:
             if m not in self.measured:
                 return m
         return max(LEARNED_MODES, key=lambda m: self.measured[m])
+
+    @property
+    def split_pending(self) -> bool:
+        """Policy ``auto``: splitting not tried yet, and to be tried (the last roulette pass
+        estimated a gain of ``SPLIT_TRY`` or more over the throughput rule)."""
+        return (self.policy == "auto" and self.split_gain is None and self.gain is not None
+                and self.gain >= SPLIT_TRY)
 
     @property
     def alternative(self):
