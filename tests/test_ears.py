@@ -127,7 +127,7 @@ def test_never_policy_roulette_only(scene_name):
 
 
 def test_learning_settles_then_records_nothing(monkeypatch):
-    """Once the median visited cell holds ``SETTLED_COPIES`` copies after ``SETTLED_PASSES``
+    """Once the cell of the median copy holds ``SETTLED_COPIES`` copies after ``SETTLED_PASSES``
     (2) learned passes (the first call's learned part counts one) learning stops: the next
     pass keeps the factors and records nothing, its pixels still counted; the run record says
     so.  Far from that many copies it goes on.  A film of another size learns again from a
@@ -165,6 +165,21 @@ def test_learning_settles_then_records_nothing(monkeypatch):
     e.split_gain = 2.0
     e.film((4, 4))
     assert e.gain is None and e.split_gain is None
+
+
+def test_median_copy_cell():
+    """The settling count is taken where the copies are: half the copies are in cells holding
+    at least ``median_copy_cell`` copies.  Many rarely visited cells beside a few busy ones (the
+    dark scene) do not hold it down, as the median over the cells would."""
+    counts = np.array([1.0] * 99 + [1000.0])
+    assert splitting.median_copy_cell(counts) == 1000.0
+    assert splitting.median_copy_cell(np.array([3.0, 1.0, 2.0, 2.0])) == 2.0
+    assert splitting.median_copy_cell(np.array([5.0, 5.0, 90.0])) == 90.0
+    assert splitting.median_copy_cell(np.zeros(0)) == 0.0
+    rng = np.random.default_rng(1)
+    c = rng.pareto(1.2, 5000) + 1.0
+    m = splitting.median_copy_cell(c)
+    assert c[c >= m].sum() >= 0.5 * c.sum() > c[c > m].sum()
 
 
 def test_plain_passes_are_nee_path():

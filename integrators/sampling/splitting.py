@@ -59,15 +59,20 @@ a vertex has n = 1 and its copy applies the classic throughput rule after its BS
 Mitsuba's ``path`` does: applied before the sample, the rule lags one bounce behind and traces a
 fifth more rays (4.5 against 5.5 continuations per camera sample in the indirect room).  The
 learned state lives on the integrator per scene, across the passes of ``render --spp`` or
-``--time``.  Learning stops once the cells hold enough copies (``SETTLED_COPIES`` in the median
-visited fine cell, after ``SETTLED_PASSES`` learned passes in the same mode): the later passes keep
-the factors and record nothing (``EARS.settled``, in the run record), which takes the records' cost
-out of most of a long render (indirect room, 96 px, 512 spp in doubling passes: 1.32x -> 1.42x
-``nee_path``'s efficiency, before the first call's parts).  Where the learned roulette ends most
-copies early (the dark scene with a bright light) the cells' counts stay low and learning goes on,
-as before; a film of another size starts again from a classic pass.  The shrinkage replaced two
-earlier guards against second moments read low: the larger of the fine and the coarse cell's
-roulette factor, and a ``MIN_VISITS`` per cell (below it the throughput rule).  With them,
+``--time``.  Learning stops once the cells hold enough copies (``SETTLED_COPIES`` in the cell of
+the median copy, :func:`median_copy_cell`, after ``SETTLED_PASSES`` learned passes in the same
+mode): the later passes keep the factors and record nothing (``EARS.settled``, in the run record),
+which takes the records' cost out of most of a long render (indirect room, 96 px, 512 spp in
+doubling passes: 1.32x -> 1.42x ``nee_path``'s efficiency, before the first call's parts).  The
+count is taken where the copies are, not over the cells: where the learned roulette ends most
+copies early (the dark scene with a bright light) thousands of cells are each visited by a few
+copies: after the four calls of a 512-spp render (32 to 256 spp) the median visited cell held
+10-52 copies and learning never stopped, while the cell of the median copy held 233-1993; the
+records cost 18 % of a pass there (82 ms against 70 ms frozen, 96 px, 64 spp), 5-7 % in the
+room, the mesh and the glossy scene.  A film of another size starts again from a classic pass.
+The shrinkage replaced two earlier guards against second moments read low: the larger of the
+fine and the coarse cell's roulette factor, and a ``MIN_VISITS`` per cell (below it the
+throughput rule).  With them,
 ``glass_shade`` at 96 px was 0.12/0.14/0.71x ``nee_path``'s efficiency at 32/128/512 spp (relMSE
 10-22 against 2.0 at 32 spp: the young table's roulette at ``rr_min``) and the indirect room
 1.01/1.24/1.28x; with the shrinkage (and :meth:`EARS.learn` on the cells with copies only, 1.5-3 ms
@@ -306,11 +311,16 @@ MIN_VISITS = 32
 #: share of a call's samples rendered classic where it starts with nothing learned (the rest
 #: of the call is rendered learned, :meth:`EARS.parts`; 1: the whole call classic)
 FIRST_PART = 0.25
-#: copies the median visited fine cell holds (its statistics as decayed, after a learned pass)
-#: when learning stops: the later passes keep the factors and record nothing (the records cost
-#: 8 % of a roulette pass in the indirect room, 654 ms against 604 ms frozen, for no change in
-#: variance once the cells hold about a hundred copies: relative MSE 0.486 learning, 0.485
-#: frozen, 96 px, 128-spp passes after 128 spp of learning)
+#: copies the cell of the median copy holds (:func:`median_copy_cell`, over the fine cells, their
+#: statistics as decayed, after a learned pass) when learning stops: the later passes keep the
+#: factors and record nothing (the records cost 8 % of a roulette pass in the indirect room,
+#: 654 ms against 604 ms frozen, for no change in variance once the cells hold about a hundred
+#: copies: relative MSE 0.486 learning, 0.485 frozen, 96 px, 128-spp passes after 128 spp of
+#: learning).  Over the cells' median instead (before 2026-12-06) the dark scene never settled;
+#: side by side with it (96 px, the benchmark's seeds, 4 repeats at 32/128 spp, 2 at 512): the
+#: same images at 32 and 512 spp (the last pass's table is the same), at 128 relative MSE
+#: 1.00-1.05x for 0.92-0.98x the time (indirect room 1.04x the efficiency, dark scene 1.07x,
+#: heavy mesh 1.02x, glossy 1.00x, ajar door 1.04x); at 512 spp 0.95-0.97x the time
 SETTLED_COPIES = 64
 #: learned passes in a row in the same mode (a call's parts count one each; a change of mode,
 #: ``auto``'s split trial or ``measured``'s alternation, starts again from one) before learning
@@ -660,7 +670,7 @@ class EARS:
             self.learned_mode = self.mode
         self.settled = bool(self.mode in LEARNED_MODES and ok_any and vis_f.size > 0 and
                             self.learned_passes >= SETTLED_PASSES and
-                            np.median(st_f[vis_f, 2]) >= SETTLED_COPIES)
+                            median_copy_cell(st_f[vis_f, 2]) >= SETTLED_COPIES)
         self.inv_pixel = mi.Float((1.0 / np.sqrt(ip2)).astype(np.float32))
         self.learned = ok_any
         self.v_rel, self.cost = v_rel, cost
@@ -782,6 +792,17 @@ class EARS:
         f_m = np.where(ok, RR_MARGIN * np.sqrt(m2 * k / c), -1.0)
         f_v = np.where(ok, np.sqrt(v * k / c), -1.0)
         return f_m, f_v, ok
+
+
+def median_copy_cell(copies) -> float:
+    """The copies held by the cell of the median copy (the cells' counts ``copies`` weighted by
+    themselves): half the copies are in cells that hold at least this many.  What a vertex's
+    factor is learned from, taken where the vertices are: the median over the cells counts
+    every rarely visited cell as much as a busy one."""
+    c = np.sort(np.asarray(copies, np.float64).ravel())
+    if c.size == 0 or c[-1] <= 0:
+        return 0.0
+    return float(c[np.searchsorted(np.cumsum(c), 0.5 * c.sum())])
 
 
 # ---- the records of the megakernel (Wavefront.roulette_kernel): one tuple per vertex depth j,
