@@ -161,4 +161,9 @@ MUTANTS = [
     ("ears-settled-after-one-pass", _S,
      "self.learned_passes >= SETTLED_PASSES and", "self.learned_passes >= 1 and",
      ["test_ears.py::test_learning_settles_then_records_nothing"]),
+    # the per-pixel state of one view kept for another of the same size
+    ("ears-pixel-state-other-view", _S,
+     "if self.shape != tuple(shape) or self.view != view:",
+     "if self.shape != tuple(shape):",
+     ["test_ears.py::test_pixel_state_follows_the_view"]),
 ]

@@ -167,6 +167,34 @@ def test_learning_settles_then_records_nothing(monkeypatch):
     assert e.gain is None and e.split_gain is None
 
 
+def test_pixel_state_follows_the_view(monkeypatch):
+    """The per-pixel state (the pixels' values the factors are relative to, and with it the
+    settling) belongs to one view: a second sensor with a film of the same size and the same
+    pose keeps it, one moved starts again from a classic pass (the regions' statistics, in
+    world space, are kept)."""
+    scene = mi.load_file(str(ROOT / "scenes" / "ears_dark_bright.xml"), res="16")
+    monkeypatch.setattr(splitting, "SETTLED_COPIES", 0.5)
+    it = ears(max_depth=6, split_policy="never")
+    for k in range(2):
+        mi.render(scene, integrator=it, spp=32, seed=k)
+    e = it.ears
+    assert e.settled
+
+    def sensor(to_world):
+        s = mi.load_dict({"type": "perspective", "film": {"type": "hdrfilm", "width": 16,
+                                                          "height": 16}})
+        s.m_to_world = to_world
+        return s
+    pose = scene.sensors()[0].world_transform()
+    assert splitting.film_shape(sensor(pose).film()) == e.shape
+    mi.render(scene, integrator=it, sensor=sensor(pose), spp=32, seed=2)
+    assert it.stats["parts"] == [("roulette", 32)] and e.settled
+    moved = mi.Transform4f().translate([0.05, 0.0, 0.0]) @ pose
+    mi.render(scene, integrator=it, sensor=sensor(moved), spp=32, seed=3)
+    assert it.stats["parts"][0][0] == "classic" and not e.settled
+    assert e.pix_n.max() == 32
+
+
 def test_median_copy_cell():
     """The settling count is taken where the copies are: half the copies are in cells holding
     at least ``median_copy_cell`` copies.  Many rarely visited cells beside a few busy ones (the

@@ -55,7 +55,7 @@ from ..common import depth_limit, is_jit, record_once
 from ..params import MAX_COUNT, Param, ParameterError
 from ..registry import plugin
 from ..sampling import light_selection, mis, roulette, splitting
-from ..sampling.learning import film_shape
+from ..sampling.learning import film_shape, sensor_view
 from ..sampling.vertex import VertexEstimator
 from .base import HIDE_EMITTERS, MAX_DEPTH, IntegratorTemplate
 
@@ -152,8 +152,8 @@ class NEEPath(IntegratorTemplate):
         film = sensor.film()
         film.prepare([])
         self.ears.forced = self.forced_factor
-        if self.ears.mode != "plain":       # (a new film: its pixels measured first)
-            self.ears.film(film_shape(film))
+        if self.ears.mode != "plain":       # (a new film or view: its pixels measured first)
+            self.ears.film(film_shape(film), sensor_view(sensor))
         if self.forced_factor is not None:      # (tests: factors given, no mode to learn)
             self.ears.mode = self.ears.next_mode()
         if self.ears.mode == "plain":       # (Mitsuba's kernel: no rays counted)

@@ -100,6 +100,17 @@ def film_shape(film):
     return h, w
 
 
+def sensor_view(sensor) -> tuple:
+    """What a film's pixels see: the film's layout (:func:`film_shape`), its crop offset and
+    the sensor's pose (its to_world matrix).  Per-pixel statistics learned for one view are
+    not another's: a sensor moved, or another sensor with a film of the same size, starts
+    them again.  (Not the sensor's intrinsics: a zoom keeps them.)"""
+    film = sensor.film()
+    m = np.array(sensor.world_transform().matrix, np.float64).ravel()
+    return (film_shape(film), tuple(int(x) for x in film.crop_offset()),
+            tuple(float(x) for x in m))
+
+
 def relmse_denominator(mean):
     """I_p^2 + PIXEL_EPS for pixel means ``mean`` (numpy): what a pixel's squared error is
     divided by in the relMSE, so 1 / it is the pixel's weight there (EARS's and mis3's

@@ -69,7 +69,9 @@ copies early (the dark scene with a bright light) thousands of cells are each vi
 copies: after the four calls of a 512-spp render (32 to 256 spp) the median visited cell held
 10-52 copies and learning never stopped, while the cell of the median copy held 233-1993; the
 records cost 18 % of a pass there (82 ms against 70 ms frozen, 96 px, 64 spp), 5-7 % in the
-room, the mesh and the glossy scene.  A film of another size starts again from a classic pass.
+room, the mesh and the glossy scene.  A film of another size, or a sensor moved (another
+pose or crop: :func:`~integrators.sampling.learning.sensor_view`), starts again from a classic
+pass: the pixels' values the factors are relative to are another view's.
 The shrinkage replaced two earlier guards against second moments read low: the larger of the
 fine and the coarse cell's roulette factor, and a ``MIN_VISITS`` per cell (below it the
 throughput rule).  With them,
@@ -300,7 +302,7 @@ import mitsuba as mi
 import numpy as np
 
 from ..common import depth_limit, emitted, lnot, luminance, record_once, safe_div, widen
-from .learning import RegionGrid, film_shape, relmse_denominator
+from .learning import RegionGrid, film_shape, relmse_denominator, sensor_view
 from .roulette import roulette, throughput_survival
 
 #: bounces whose vertices keep records (statistics of L_r and cost per region); one more
@@ -460,7 +462,7 @@ class EARS:
         #: are shrunk towards
         self.parent = dr.zeros(mi.UInt32, self.grid.size)
         dr.eval(self.parent)    # (a buffer before a kernel scatters into it, as the stats)
-        self.shape = None
+        self.shape = self.view = None
         self.passes = 0
         #: largest (live lanes + sum of n) per camera sample of a bounce in the last pass
         self.lane_demand = 2.0
@@ -486,10 +488,11 @@ class EARS:
         self.learned_mode = None
 
     # ---- per-pixel state -----------------------------------------------------------------
-    def film(self, shape):
-        """Per-pixel state for a film of ``shape`` (h, w) (reset when the film changes)."""
-        if self.shape != tuple(shape):
-            self.shape = tuple(shape)
+    def film(self, shape, view=None):
+        """Per-pixel state for a film of ``shape`` (h, w) seen from ``view``
+        (:func:`~integrators.sampling.learning.sensor_view`; reset when either changes)."""
+        if self.shape != tuple(shape) or self.view != view:
+            self.shape, self.view = tuple(shape), view
             n = shape[0] * shape[1]
             self.pix_s1 = np.zeros(n)
             self.pix_n = np.zeros(n)
@@ -926,7 +929,7 @@ class Wavefront:
         from mitsuba.ad.integrators.common import ADIntegrator
         film = sensor.film()
         h, w = film_shape(film)
-        self.ears.film((h, w))
+        self.ears.film((h, w), sensor_view(sensor))
         total = w * h * spp
         kernel = self.replicated == 0
         demand = min(max(self.ears.lane_demand, 2.0), 2.0 * self.ears.split_max + 1.0)
