@@ -54,4 +54,9 @@ MUTANTS = [
     ("learned-image-visit-unweighted", "integrators/plugins/mis3.py",
      "visit[WEIGHT] = dr.gather(mi.Float, self.pixels.weights(), self._pixel, record)",
      "visit[WEIGHT] = mi.Float(1.0)", ["test_mis3_learned.py"]),
+    # the pixels' statistics kept for another view of the same film size (as before
+    # 2026-12-06: keyed on the pixel count): a moved sensor's visits weighed by the old image
+    ("learned-pixels-other-view", "integrators/sampling/learning.py",
+     "if stats is not None and stats.view == view:",
+     "if stats is not None and stats.n == cls.layout(sensor):", ["test_mis3_learned.py"]),
 ]

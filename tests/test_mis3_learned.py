@@ -279,6 +279,32 @@ def test_learning_measures_the_pixels_and_weighs_the_visits():
     assert v > 0 and 3.0 <= c <= 1.0 + 2.0 * (1.0 + M.LIGHT_COST * max(M.LEARNED_P))
 
 
+def test_pixel_stats_follow_the_view(monkeypatch):
+    """The pixels' statistics the recording visits are weighed by (``PixelStats``) belong to
+    one view: a second sensor with the same film and pose keeps them, one moved starts them
+    again, its first learning call measuring its pixels first as a first render does (the
+    regions' table, in world space, is kept).  Mutant: ``learned-pixels-other-view``."""
+    from integrators.plugins import mis3 as M
+    monkeypatch.setattr(M, "LEARN_SETTLED", -1.0)      # (every call learns: none settles)
+    scene = mi.load_file(str(ROOT / "scenes" / "cornell_box.xml"), res="8")
+    integ = mi.load_dict({**LEARNED, "max_depth": 3})
+    mi.render(scene, integrator=integ, spp=256, seed=0)
+    px, first = integ.pixels, integ.pixels.count
+    assert first > 0
+
+    def sensor(to_world):
+        s = mi.load_dict({"type": "perspective", "film": {
+            "type": "hdrfilm", "width": 8, "height": 8, "rfilter": {"type": "gaussian"}}})
+        s.m_to_world = to_world
+        return s
+    pose = scene.sensors()[0].world_transform()
+    mi.render(scene, integrator=integ, sensor=sensor(pose), spp=256, seed=1)
+    assert integ.pixels is px and px.count > first
+    moved = mi.Transform4f().translate([0.05, 0.0, 0.0]) @ pose
+    mi.render(scene, integrator=integ, sensor=sensor(moved), spp=256, seed=2)
+    assert integ.pixels is not px and integ.pixels.count == first
+
+
 def test_pixel_layout_is_mitsubas():
     """``PixelStats.pixel`` (lane // spp) is the pixel Mitsuba's render gives each lane of a
     pass: a Python integrator that returns its lane's computed pixel index renders the image of

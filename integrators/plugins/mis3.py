@@ -358,10 +358,7 @@ class MIS3(IntegratorTemplate):
         what was learned."""
         px = None
         if is_jit() and LEARN_IMAGE:
-            n_pix = PixelStats.layout(sensor_obj)
-            if self.pixels is None or self.pixels.n != n_pix:
-                self.pixels = PixelStats(n_pix)
-            px = self.pixels
+            px = self.pixels = PixelStats.of(self.pixels, sensor_obj)
         parts = []
 
         def run(n, s, quiet, collect=True):

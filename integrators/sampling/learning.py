@@ -135,8 +135,10 @@ class PixelStats:
     film's crop, plus the filter's border where the film samples it): :meth:`pixel` returns
     that index, or None where the wavefront is not laid out so (then nothing is collected)."""
 
-    def __init__(self, n_pixels: int):
+    def __init__(self, n_pixels: int, view=None):
         self.n = int(n_pixels)
+        #: the view the pixels are of (:func:`sensor_view`): another view starts them again
+        self.view = view
         self.s1 = dr.zeros(mi.Float, self.n)
         self.s2 = dr.zeros(mi.Float, self.n)
         self.count = 0                 # camera samples per pixel so far
@@ -150,6 +152,16 @@ class PixelStats:
         """The number of pixels Mitsuba's render lays a pass out over for ``sensor``."""
         h, w = film_shape(sensor.film())
         return h * w
+
+    @classmethod
+    def of(cls, stats, sensor):
+        """``stats`` where they are of ``sensor``'s view (:func:`sensor_view`), else new ones
+        for it: the pixels' means a moved sensor, or another of the same film size, would
+        weigh its visits by are another image's."""
+        view = sensor_view(sensor)
+        if stats is not None and stats.view == view:
+            return stats
+        return cls(cls.layout(sensor), view)
 
     def pixel(self, width: int, spp: int):
         """The pixel of each lane of a wavefront of ``width`` lanes at ``spp`` (or None); the
