@@ -379,7 +379,20 @@ SPLIT_COST = 1.05
 #: is below ``KERNEL_COST``).  Splitting's estimated gains over the roulette: 1.55 (ajar door),
 #: 1.27 (indirect room), 1.22 (glossy scene), 0.98-1.0 (heavy mesh, dark scene; 48 px, 128-spp
 #: passes after learning); below 1.15 the splitting would have to gain 1.2 or more to pay for
-#: the learned kernel
+#: the learned kernel.  Tried and not kept (2026-12-06, 96 px, 4 repeats, efficiency relative to
+#: ``nee_path`` side by side with this rule, at 32/128/512 spp):
+#: splitting tried at every roulette gain (1.0): the ajar door (roulette 1.07-1.10 at 512 spp,
+#: splitting 1.4-1.7 over it) +0.10 at 512 and the Cornell box +0.07/+0.08 at 128/512, but the
+#: trial pass at half the efficiency where splitting does not pay: Veach's MIS scene 0.64/0.67
+#: against 0.81/0.86, ``small_light`` 0.62 against 0.77 at 32, ``many_lights`` -0.04 to -0.10;
+#: the trial in the next roulette pass instead of a whole split pass (one row of pixels in four
+#: split and estimated the roulette, the other rows the rule; random samples instead made the
+#: pass cost a split pass's, each SIMD packet waiting for its lane of most copies): cheaper where
+#: splitting does not pay (dark scene +0.12/+0.08/-0.05, heavy mesh +0.13/+0.04/+0.03), a pass
+#: later where it does (ajar door -0.10/-0.13/+0.01, glossy -0.07/-0.04/+0.02, indirect room
+#: -0.01/-0.09/-0.02); with it at every roulette gain, its few samples read splitting's gain
+#: high often enough to split ``specular_box`` and ``sharp_glossy`` at 32 spp (0.52x and
+#: 0.17x with the split kernel's compilation in the time)
 SPLIT_TRY = 1.15
 #: atomic scatter-adds (the default may replicate the target per thread, with its size baked
 #: into the kernel: a recompilation whenever a wavefront's width changes)
