@@ -44,7 +44,11 @@ SCENES = ("ears_indirect_room", "ears_dark_bright", "ears_glossy", "ears_heavy_m
           "glass_shade", "specular_box", "caustic", "ajar_door",
           # the experiment scenes lit mostly directly (the floor there too), at the
           # experiments' max_depth (4) and defines
-          "veach_mis", "cornell_box", "many_lights", "small_light", "sharp_glossy")
+          "veach_mis", "cornell_box", "many_lights", "small_light", "sharp_glossy",
+          # a room lit through a window by the sky and the sun (infinite emitters, most shadow
+          # rays blocked by the walls): a kind none of the others is, added after the
+          # thirteen's run (2026-12-06)
+          "ears_window")
 METHODS = {
     "path": ({"type": "path"}, "Mitsuba's built-in `path` (throughput roulette from depth 5)"),
     "nee_path": ({"type": "nee_path", "rr": "throughput"},
