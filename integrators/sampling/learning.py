@@ -18,7 +18,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ..common import is_jit
+from ..common import host, host_view, is_jit
 
 
 class RegionGrid:
@@ -74,7 +74,15 @@ class RegionGrid:
     # ---- between passes ------------------------------------------------------------------
     def statistics(self) -> np.ndarray:
         """(size, stats) array of what the passes so far accumulated."""
-        return np.array(self.stats, dtype=np.float64).reshape(self.size, self.stats_per_cell)
+        return host(self.stats).reshape(self.size, self.stats_per_cell)
+
+    def visited(self, column: int):
+        """(the cells whose statistic ``column`` is positive, their rows of statistics as
+        float64): what a learner reads back between passes, without copying the cells no pass
+        reached (most of them)."""
+        st = host_view(self.stats).reshape(self.size, self.stats_per_cell)
+        vis = np.flatnonzero(st[:, column] > 0)
+        return vis, st[vis].astype(np.float64)
 
     def set_table(self, table: np.ndarray):
         """Decisions for the next pass (one value per cell)."""
@@ -186,7 +194,7 @@ class PixelStats:
         self.count += int(spp)
         if costed:
             self.cost_samples += int(spp) * self.n
-        mean = np.array(self.s1, np.float64) / max(self.count, 1)
+        mean = host(self.s1) / max(self.count, 1)
         self.w = mi.Float((1.0 / relmse_denominator(mean)).astype(np.float32))
 
     def weights(self):
@@ -198,13 +206,13 @@ class PixelStats:
         if self.count < 2 or self.cost_samples == 0:
             return None
         n = self.count
-        s1 = np.array(self.s1, np.float64)
-        s2 = np.array(self.s2, np.float64)
+        s1 = host(self.s1)
+        s2 = host(self.s2)
         mean = s1 / n
         var = np.maximum(s2 / n - mean * mean, 0.0) * n / (n - 1)
         rel = var / relmse_denominator(mean)
         ok = np.isfinite(rel)       # (a pixel that saw a NaN or an infinity says nothing)
-        cost = np.array(self.cost, np.float64)
+        cost = host(self.cost)
         if not ok.any() or not np.isfinite(cost).all():
             return None
         v = float(np.mean(rel[ok]))

@@ -301,7 +301,8 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ..common import depth_limit, emitted, lnot, luminance, record_once, safe_div, widen
+from ..common import (depth_limit, emitted, host, host_view, lnot, luminance, record_once,
+                      safe_div, widen)
 from .learning import RegionGrid, film_shape, relmse_denominator, sensor_view
 from .roulette import roulette, throughput_survival
 
@@ -634,8 +635,8 @@ class EARS:
     def learn(self, spp: int, seconds: float = 0.0):
         """Factors for the next pass from the statistics so far (see the module docstring);
         ``seconds``: the pass's wall time (the efficiency of its mode, ``next_mode``)."""
-        s1 = np.array(self.pass_s1, np.float64)
-        s2 = np.array(self.pass_s2, np.float64)
+        s1 = host(self.pass_s1)
+        s2 = host(self.pass_s2)
         cost = self.pass_cost / max(s1.size * spp, 1)
         self.pix_s1 += s1
         self.pix_n += spp
@@ -655,22 +656,21 @@ class EARS:
         # the moments shrunk towards the parent level's: coarse cells towards the whole scene's,
         # fine cells towards their coarse cell's (see factors)
         # (on the cells with copies only: a few thousand of the fine grid's 65536)
-        st_c = self.coarse.statistics()
+        # (statistics: rows of the cells with copies; column 2 the copies)
+        vis_c, st_c = self.coarse.visited(2)
         total = st_c.sum(axis=0)
-        vis_c = np.flatnonzero(st_c[:, 2] > 0)
-        mom_c = np.zeros((st_c.shape[0], 4))
-        mom_c[vis_c] = self.moments(st_c[vis_c], np.broadcast_to(
+        mom_c = np.zeros((self.coarse.size, 4))
+        mom_c[vis_c] = self.moments(st_c, np.broadcast_to(
             total / max(total[2], 1e-30), (vis_c.size, 4)))
-        st_f = self.grid.statistics()
-        vis_f = np.flatnonzero(st_f[:, 2] > 0)
-        parent = np.array(self.parent, np.int64)[vis_f]
-        mom_f = self.moments(st_f[vis_f], mom_c[parent])
+        vis_f, st_f = self.grid.visited(2)
+        parent = host_view(self.parent)[vis_f]
+        mom_f = self.moments(st_f, mom_c[parent])
         ok_any = False
         for grid, attr, st, vis, mom in ((self.grid, "f_var", st_f, vis_f, mom_f),
                                          (self.coarse, "f_var_coarse", st_c, vis_c,
                                           mom_c[vis_c])):
             f_m, f_v = np.full(grid.size, -1.0), np.full(grid.size, -1.0)
-            f_m[vis], f_v[vis], ok = self.factors(st[vis], mom, k, total[2])
+            f_m[vis], f_v[vis], ok = self.factors(st, mom, k, total[2])
             grid.set_table(f_m)
             setattr(self, attr, mi.Float(f_v.astype(np.float32)))
             grid.stats = grid.stats * DECAY
@@ -686,7 +686,7 @@ class EARS:
             self.learned_mode = self.mode
         self.settled = bool(self.mode in LEARNED_MODES and ok_any and vis_f.size > 0 and
                             self.learned_passes >= SETTLED_PASSES and
-                            median_copy_cell(st_f[vis_f, 2]) >= SETTLED_COPIES)
+                            median_copy_cell(st_f[:, 2]) >= SETTLED_COPIES)
         self.inv_pixel = mi.Float((1.0 / np.sqrt(ip2)).astype(np.float32))
         self.learned = ok_any
         self.v_rel, self.cost = v_rel, cost
@@ -695,7 +695,7 @@ class EARS:
             # differently; the same means, so their difference is the second moments')
             def rel_var(second):
                 return float(np.mean((second / spp - mean ** 2) * n_all / (n_all - 1) / ip2))
-            self.compare(rel_var(s2), cost, rel_var(np.array(self.pass_s2c, np.float64)),
+            self.compare(rel_var(s2), cost, rel_var(host(self.pass_s2c)),
                          self.pass_cost_c / max(s1.size * spp, 1))
         # each mode's last pass, its efficiency measured against the current pixel means (the
         # same denominators for every mode: a pass measured against the noisier means of an
