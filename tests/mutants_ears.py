@@ -148,7 +148,7 @@ MUTANTS = [
     # settled after any learned pass, however few copies the cells hold ...
     ("ears-settled-without-copies", _S,
      "self.learned_passes >= SETTLED_PASSES and\n"
-     "                            median_copy_cell(st_f[vis_f, 2]) >= SETTLED_COPIES)",
+     "                            median_copy_cell(st_f[:, 2]) >= SETTLED_COPIES)",
      "self.learned_passes >= SETTLED_PASSES)",
      ["test_ears.py::test_learning_settles_then_records_nothing"]),
     # ... or counted over the cells (the rarely visited ones as much as the busy ones: the dark
@@ -166,4 +166,10 @@ MUTANTS = [
      "if self.shape != tuple(shape) or self.view != view:",
      "if self.shape != tuple(shape):",
      ["test_ears.py::test_pixel_state_follows_the_view"]),
+    # the statistics read back of every cell, as if each had copies (the unvisited ones get
+    # their parent's factors instead of the throughput rule)
+    ("ears-read-back-every-cell", "integrators/sampling/learning.py",
+     "vis = np.flatnonzero(st[:, column] > 0)",
+     "vis = np.arange(self.size)",
+     ["test_ears.py::test_statistics_read_back"]),
 ]

@@ -662,6 +662,33 @@ def test_moments_shrunk_towards_the_parent():
     assert not splitting.EARS.factors(st, mom, 1.0, splitting.MIN_VISITS - 1)[2].any()
 
 
+def test_statistics_read_back():
+    """What the learners read back between passes (:func:`~integrators.common.host`,
+    :meth:`RegionGrid.visited`, read through DLPack on the LLVM backend): the cells with copies
+    and their rows exactly as ``statistics()`` has them, as copies that the next pass's
+    scatters into the grid do not change."""
+    from integrators.common import host
+    from integrators.sampling.learning import RegionGrid
+    scene = mi.load_dict({"type": "scene", "s": {"type": "sphere"}})
+    grid = RegionGrid(scene, stats=4, resolution=4, size=64)
+    cells = mi.UInt32([3, 3, 17, 40])
+    grid.add(cells, [mi.Float([1, 2, 3, 4]), mi.Float(0.5), mi.Float([1, 1, 1, 0]),
+                     mi.Float(2.0)], mi.Bool(True))
+    dr.eval(grid.stats)
+    full = grid.statistics()
+    vis, rows = grid.visited(2)
+    assert vis.tolist() == [3, 17] and rows.dtype == np.float64
+    assert np.array_equal(rows, full[vis])
+    assert rows[0].tolist() == [3.0, 1.0, 2.0, 4.0]
+    flat = host(grid.stats)
+    assert np.array_equal(flat, full.ravel())
+    assert host(mi.UInt32([7, 9]), np.int64).tolist() == [7, 9]
+    grid.add(cells, [mi.Float(1.0)] * 4, mi.Bool(True))
+    dr.eval(grid.stats)
+    assert rows[0].tolist() == [3.0, 1.0, 2.0, 4.0] and np.array_equal(flat, full.ravel())
+    assert grid.visited(2)[1][0].tolist() == [5.0, 3.0, 4.0, 6.0]
+
+
 def test_pass_clock_leaves_the_kernel_history_alone():
     """The measured policy's clock turns Dr.Jit's kernel history on only for its block (to
     subtract compilation) and leaves a caller's own history, and the flag, as they were."""
