@@ -23,9 +23,9 @@ def host_view(x) -> np.ndarray:
     backend: a read-only view of its memory, which it keeps alive).  Through DLPack: ``np.array``
     of a Dr.Jit array (Dr.Jit 1.5) leaves the thread's upper AVX register state dirty, and until
     some AVX code clears it every legacy-SSE instruction after it pays for it (measured: numpy's
-    ``sum(axis=0)`` over a 4096 x 4 array 0.07 ms clean, 0.7-1.0 ms after a conversion; EARS's
-    learning between passes 3.1 -> 2.4 ms on Veach's MIS scene, 4.9 -> 2.9 ms in the indirect
-    room); the DLPack export does not."""
+    ``sum(axis=0)`` over a 4096 x 4 array 0.07 ms clean, 0.7-1.0 ms after a conversion; this
+    alone took EARS's learning between passes from 3.1 to 2.4 ms on Veach's MIS scene and from
+    4.9 to 2.9 ms in the indirect room, 96 px); the DLPack export does not."""
     if dr.is_jit_v(x) and dr.backend_v(x) == dr.JitBackend.LLVM:
         dr.eval(x)
         return np.from_dlpack(x)
