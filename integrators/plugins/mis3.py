@@ -453,11 +453,10 @@ class MIS3(IntegratorTemplate):
     def learn(self):
         """Per region, the candidate p(3) that minimises (variance of the direct-light estimate)
         x (cost of the vertex), from the statistics of every pass so far (see the docstring)."""
-        st = self.grid.statistics()
         k = len(LEARNED_P)
         old = self.grid.table()
-        live = np.nonzero(st[:, k + 1] > 0)[0]   # the cells ever visited (the others keep -1)
-        st = st[live]
+        # the cells ever visited and their statistics (the others keep -1)
+        live, st = self.grid.visited(k + 1)
         n = st[:, k + 1]
         # a region leaves p(3) = 1 only on enough visits and enough non-zero samples: the
         # second moments of small p are heavy-tailed and read low on a few samples
