@@ -3,11 +3,14 @@ roulette, fixed splitting and Mitsuba's ``path`` (issue 16).
 
     python -m benchmarks.ears [--scenes ears_indirect_room ...] [--res 64] [--spp 16 64 256]
                               [--repeats 3] [--ref-spp 8192] [--out benchmarks/results/ears]
+                              [--single]
 
 Every render of every method is a *fresh* integrator rendering its budget in passes of doubling
 size (1/16, 1/16, 1/8, 1/4, 1/2 of the budget: the schedule of EARS's training iterations),
-the passes' images averaged by their sample counts; a learning method (``rr=adaptive``) learns
-from its own earlier passes inside that budget, so its learning is in the measured time.  The
+the passes' images averaged by their sample counts, or with ``--single`` in one
+``mi.render`` call (as a user renders a scene); a learning method (``rr=adaptive``) learns
+from its own earlier passes (or parts of the call) inside that budget, so its learning is in
+the measured time.  The
 methods of one scene render in turn (round robin, rotated every repeat), so a shared machine's
 load falls on all alike.
 
@@ -71,10 +74,10 @@ BASELINE = "nee_path"
 SCHEDULE = (1, 1, 2, 4, 8)
 
 
-def pass_sizes(spp: int) -> list:
-    """Doubling passes summing to ``spp`` (fewer passes for small budgets)."""
+def pass_sizes(spp: int, single: bool = False) -> list:
+    """Doubling passes summing to ``spp`` (fewer passes for small budgets); ``single``: one."""
     total = sum(SCHEDULE)
-    if spp < total:
+    if spp < total or single:
         return [spp]
     sizes = [spp * k // total for k in SCHEDULE]
     sizes[-1] += spp - sum(sizes)
@@ -92,15 +95,16 @@ def scene_max_depth(name: str) -> int:
     return PATH_DEPTH if name in EXPERIMENT_SCENES else -1
 
 
-def render_budget(scene, integrator_dict, spp: int, seed: int):
-    """(image, seconds, stats) of one fresh integrator rendering ``spp`` in passes."""
+def render_budget(scene, integrator_dict, spp: int, seed: int, single: bool = False):
+    """(image, seconds, stats) of one fresh integrator rendering ``spp`` in passes (``single``:
+    one render call)."""
     import drjit as dr
     import mitsuba as mi
     from .timing import clock
     t0 = clock()
     integ = mi.load_dict(integrator_dict)
     acc, stats = None, {}
-    for k, m in enumerate(pass_sizes(spp)):
+    for k, m in enumerate(pass_sizes(spp, single)):
         img = mi.render(scene, integrator=integ, spp=m, seed=seed * 64 + k) * (m / spp)
         acc = img if acc is None else acc + img
         dr.eval(acc)
@@ -145,7 +149,7 @@ def load_scene(name: str, res: int):
     return mi.load_file(str(REPO / "scenes" / f"{name}.xml"), **defines)
 
 
-def run_scene(name, res, budgets, repeats, ref_spp, methods, log=print):
+def run_scene(name, res, budgets, repeats, ref_spp, methods, log=print, single=False):
     import integrators  # noqa: F401
     scene = load_scene(name, res)
     ref, ref_self = reference(name, scene, res, ref_spp)
@@ -160,7 +164,7 @@ def run_scene(name, res, budgets, repeats, ref_spp, methods, log=print):
             order = methods[rep % len(methods):] + methods[:rep % len(methods)]
             for m in order:
                 img, dt, st = render_budget(scene, {**METHODS[m][0], **depth}, spp,
-                                            seed=1000 * rep + spp)
+                                            seed=1000 * rep + spp, single=single)
                 if rep == 0:
                     continue
                 errs[m].append(max(relmse(img, ref) - ref_self, 1e-12))
@@ -200,14 +204,15 @@ def chart(path, name, res_rows):
     plt.close(fig)
 
 
-def table(results, budgets, command) -> str:
+def table(results, budgets, command, single=False) -> str:
+    how = "one render call" if single else "doubling passes"
     md = ["# EARS: efficiency-aware roulette and splitting (issue 16)", "",
           "Efficiency = 1 / (relMSE x seconds), relative to `nee_path` with throughput "
           "roulette at the same budget (higher is better); every render a fresh integrator, "
-          "its budget in doubling passes, learning in the time.  `rays/sample`: rays traced "
+          f"its budget in {how}, learning in the time.  `rays/sample`: rays traced "
           "per camera sample by `rr=adaptive` (closest-hit + shadow) in its own kernel's "
-          "passes (the plain passes after a fallback run `nee_path`'s kernel and are not "
-          "counted).", ""]
+          "passes (the plain passes or parts after a fallback run `nee_path`'s kernel and "
+          "are not counted).", ""]
     # (the methods that ran, in METHODS's order: the header matches the cells)
     present = [m for m in METHODS if any(m in r["methods"] for r in results.values())]
     for m in present:
@@ -239,6 +244,8 @@ def main(argv=None):
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--ref-spp", type=int, default=8192)
     ap.add_argument("--out", default=str(REPO / "benchmarks" / "results" / "ears"))
+    ap.add_argument("--single", action="store_true",
+                    help="each budget in one render call instead of doubling passes")
     a = ap.parse_args(argv)
     if BASELINE not in a.methods:
         a.methods.insert(0, BASELINE)
@@ -247,13 +254,15 @@ def main(argv=None):
     out = Path(a.out)
     results = {}
     for name in a.scenes:
-        results[name] = run_scene(name, a.res, a.spp, a.repeats, a.ref_spp, a.methods)
+        results[name] = run_scene(name, a.res, a.spp, a.repeats, a.ref_spp, a.methods,
+                                  single=a.single)
         chart(out / f"{name}.png", name, results[name])
         write_text(out / "results.json", json.dumps(
             {"command": command, "date_utc": provenance.now_utc(), "git": provenance.git_state(),
-             "machine": provenance.machine(), "res": a.res, "results": results}, indent=1))
-        write_text(out / "ears.md", table(results, a.spp, command))
-    print(table(results, a.spp, command))
+             "machine": provenance.machine(), "res": a.res, "single": a.single,
+             "results": results}, indent=1))
+        write_text(out / "ears.md", table(results, a.spp, command, a.single))
+    print(table(results, a.spp, command, a.single))
 
 
 if __name__ == "__main__":

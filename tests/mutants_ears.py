@@ -172,4 +172,16 @@ MUTANTS = [
      "vis = np.flatnonzero(st[:, column] > 0)",
      "vis = np.arange(self.size)",
      ["test_ears.py::test_statistics_read_back"]),
+    # a plain part within a call with its lanes inactive (its samples black, weighted as
+    # rendered)
+    ("ears-plain-part-inactive", _S,
+     "L, valid, _ = self.integ.sample(scene, sampler, ray)",
+     "L, valid, _ = self.integ.sample(scene, sampler, ray, None, False)",
+     ["test_ears.py::test_plain_part_within_a_call"]),
+    # the parts of a call that decide the mode all of the first part's size (the split trial
+    # as small as the classic part)
+    ("ears-parts-not-doubling", _S,
+     "size = min(first if k == 0 else done, left)",
+     "size = min(first, left)",
+     ["test_ears.py::test_auto_policy_tries_splitting_then_keeps_what_pays"]),
 ]

@@ -107,31 +107,33 @@ def test_modes_tried_then_measured():
 
 @pytest.mark.parametrize("scene_name", ["cornell_box", "ears_dark_bright"])
 def test_never_policy_roulette_only(scene_name):
-    """split_policy=never: the first call classic for a quarter of its samples,
-    then the learned roulette in one kernel (no replication: no lanes held), and from then on,
-    as that roulette part compared them, the learned roulette or the plain kernel with the
-    throughput rule, which stays.  In the dark scene around a bright light the learned
-    roulette pays, in the Cornell box (light everywhere, paths of similar worth) it does not."""
+    """split_policy=never: the first call classic for a sixteenth of its samples, then a
+    sixteenth with the learned roulette in one kernel (no replication: no lanes held), and
+    from then on, the rest of that call included, as that roulette part compared them, the
+    learned roulette or the plain kernel with the throughput rule, which stays.  In the dark
+    scene around a bright light the learned roulette pays, in the Cornell box (light
+    everywhere, paths of similar worth) it does not."""
     scene = mi.load_file(str(ROOT / "scenes" / f"{scene_name}.xml"), res="16")
     it = ears(max_depth=6, split_policy="never")
     modes, gains = [], []
+    want = "plain" if scene_name == "cornell_box" else "roulette"
     for k in range(4):
         mi.render(scene, integrator=it, spp=32, seed=k)
         modes.append((it.stats["mode"], it.stats["max_lanes"]))
         gains.append(it.ears.gain)
         if k == 0:
-            assert it.stats["parts"] == [("classic", 8), ("roulette", 24)], it.stats
-    want = "plain" if scene_name == "cornell_box" else "roulette"
-    assert modes == [("roulette", 0)] + [(want, 0)] * 3, (modes, gains)
+            assert it.stats["parts"] == [("classic", 2), ("roulette", 2), (want, 28)], it.stats
+    assert modes == [(want, 0)] * 4, (modes, gains)
     assert it.ears.passes == 4
 
 
 def test_learning_settles_then_records_nothing(monkeypatch):
     """Once the cell of the median copy holds ``SETTLED_COPIES`` copies after ``SETTLED_PASSES``
-    (2) learned passes (the first call's learned part counts one) learning stops: the next
-    pass keeps the factors and records nothing, its pixels still counted; the run record says
-    so.  Far from that many copies it goes on.  A film of another size learns again from a
-    classic pass (its pixels' values, which the factors are relative to, are not known yet)."""
+    (2) learned passes (the first call's learned parts count one each) learning stops: the
+    next pass keeps the factors and records nothing, its pixels still counted; the run record
+    says so.  Far from that many copies it goes on.  A film of another size learns again from
+    a classic pass (its pixels' values, which the factors are relative to, are not known
+    yet)."""
     scene = mi.load_file(str(ROOT / "scenes" / "ears_dark_bright.xml"), res="16")
     monkeypatch.setattr(splitting, "SETTLED_COPIES", 1e6)
     it = ears(max_depth=6, split_policy="never")
@@ -140,16 +142,23 @@ def test_learning_settles_then_records_nothing(monkeypatch):
         assert not it.ears.settled and it.ears.recording
     monkeypatch.setattr(splitting, "SETTLED_COPIES", 0.5)
     it = ears(max_depth=6, split_policy="never")
+    e = it.ears
     settled = []
-    for k in range(2):
-        mi.render(scene, integrator=it, spp=32, seed=k)
-        settled.append(it.ears.settled)
-    assert settled == [False, True] and it.ears.mode == "roulette"
+    e0 = splitting.EARS.learn
+
+    def learn(self, spp, seconds=0.0):
+        e0(self, spp, seconds)
+        settled.append(self.settled)
+    monkeypatch.setattr(splitting.EARS, "learn", learn)
+    mi.render(scene, integrator=it, spp=32, seed=0)
+    # (classic, roulette, the rest: settled after the second learned part)
+    assert it.stats["parts"] == [("classic", 2), ("roulette", 2), ("roulette", 28)], it.stats
+    assert settled == [False, False, True] and it.ears.mode == "roulette"
     e = it.ears
     before = [np.array(g.stats) for g in (e.grid, e.coarse)], np.array(e.grid.decisions)
     counted = e.pix_n.sum()
     mi.render(scene, integrator=it, spp=32, seed=2)
-    assert it.stats["mode"] == "roulette" and e.passes == 3
+    assert it.stats["parts"] == [("roulette", 32)] and e.passes == 2
     for a, g in zip(before[0], (e.grid, e.coarse)):
         assert np.array_equal(a, np.array(g.stats))
     assert np.array_equal(before[1], np.array(e.grid.decisions))
@@ -159,7 +168,8 @@ def test_learning_settles_then_records_nothing(monkeypatch):
                                                           "height": 8}})
     other.m_to_world = scene.sensors()[0].world_transform()
     mi.render(scene, integrator=it, sensor=other, spp=32, seed=3)
-    assert it.stats["parts"][0][0] == "classic" and not e.settled
+    assert it.stats["parts"] == [("classic", 2), ("roulette", 2), ("roulette", 28)], it.stats
+    assert settled[-3:] == [False, False, True]
     assert not np.array_equal(before[0][0], np.array(e.grid.stats))
     # (nor are the estimated gains, from the other film's pixels, kept)
     e.split_gain = 2.0
@@ -191,7 +201,7 @@ def test_pixel_state_follows_the_view(monkeypatch):
     assert it.stats["parts"] == [("roulette", 32)] and e.settled
     moved = mi.Transform4f().translate([0.05, 0.0, 0.0]) @ pose
     mi.render(scene, integrator=it, sensor=sensor(moved), spp=32, seed=3)
-    assert it.stats["parts"][0][0] == "classic" and not e.settled
+    assert it.stats["parts"] == [("classic", 2), ("roulette", 2), ("roulette", 28)], it.stats
     assert e.pix_n.max() == 32
 
 
@@ -224,6 +234,31 @@ def test_plain_passes_are_nee_path():
     ref = np.array(mi.render(scene, integrator=mi.load_dict(
         {"type": "nee_path", "rr": "throughput", "max_depth": 8}), spp=64, seed=7))
     assert np.allclose(img, ref, rtol=1e-5, atol=1e-6)
+
+
+def test_plain_part_within_a_call(monkeypatch):
+    """A call whose roulette part finds the learned roulette not worth its kernel renders the
+    rest of the call with the integrator's own kernel (the throughput rule, through the
+    wavefront's camera samples, into the same block): H0, the image is unbiased against
+    Mitsuba's ``path`` (Welch t per 4x4 block and channel, Sidak, at ``DEFAULT_ALPHA``;
+    Cornell box, 16 px, max_depth 8, 24 renders of 256 spp each side).  Each render a fresh
+    integrator, so each is rendered classic, roulette and plain (``KERNEL_COST`` infinite:
+    every roulette part goes plain).  Negative control (tests/mutants_ears.py): the plain
+    part's lanes inactive (its samples black)."""
+    from integrators.testing.stats import batch_images, image_test
+    from integrators.testing.unbiased import MAX_REL_SE
+    monkeypatch.setattr(splitting, "KERNEL_COST", float("inf"))
+    scene = mi.load_file(str(ROOT / "scenes" / "cornell_box.xml"), res="16")
+    ours, parts = [], []
+    for k in range(24):
+        it = ears(max_depth=8)
+        ours.append(np.array(mi.render(scene, integrator=it, spp=256, seed=k)))
+        parts.append(it.stats["parts"])
+    assert all(p == [("classic", 16), ("roulette", 16), ("plain", 224)] for p in parts), parts
+    ref = batch_images(scene, mi.load_dict({"type": "path", "max_depth": 8}), batches=24,
+                       spp=256, seed0=1000)
+    r = image_test(np.array(ours, np.float64), ref)
+    assert r.passed and r.rel_se <= MAX_REL_SE, r
 
 
 def _pixel_weights(scene):
@@ -353,27 +388,31 @@ def test_roulette_estimated_on_the_split_paths(scene_name, monkeypatch):
 
 def test_auto_policy_tries_splitting_then_keeps_what_pays():
     """split_policy=auto: classic, then a roulette pass (which estimates the throughput rule),
-    then, where the roulette gains enough, a split pass (which estimates the roulette); the
-    render goes on in the mode the split pass found more efficient, or plain where neither
-    pays.  In the room lit indirectly splitting pays (the first hit's copies share the camera
-    ray and carry most of the variance); in the dark scene around a bright light splitting
-    hardly happens and the roulette is kept."""
+    then, where the roulette gains enough, a split pass (which estimates the roulette), all
+    parts of the first call; the render (the rest of that call included) goes on in the mode
+    the split pass found more efficient, or plain where neither pays.  In the room lit
+    indirectly splitting pays (the first hit's copies share the camera ray and carry most of
+    the variance); in the dark scene around a bright light splitting hardly happens and the
+    roulette is kept."""
     out = {}
     for name in ("ears_indirect_room", "ears_dark_bright"):
         scene = mi.load_file(str(ROOT / "scenes" / f"{name}.xml"), res="24")
         it = ears()                 # (the default policy)
         assert it.ears is None or it.ears.policy == "auto"
-        modes, counts = [], []
+        modes, counts, first = [], [], None
         for k in range(4):
             mi.render(scene, integrator=it, spp=32, seed=k)
-            modes.extend(m for m, _ in it.stats["parts"])
+            modes.append([m for m, _ in it.stats["parts"]])
+            first = first if k else it.stats["parts"]
             counts.append((it.ears.learned_passes, it.ears.settled))
         out[name] = (modes, counts, it.ears.gain, it.ears.split_gain)
-        assert modes[:3] == ["classic", "roulette", "split"], out
-        # (the split trial is the first learned pass of its mode: learning goes on after it)
-        assert counts[1] == (1, False), out
-    assert out["ears_indirect_room"][0][3:] == ["split"] * 2, out
-    assert out["ears_dark_bright"][0][3:] == ["roulette"] * 2, out
+        kept = "split" if name == "ears_indirect_room" else "roulette"
+        assert modes == [["classic", "roulette", "split", kept]] + [[kept]] * 3, out
+        # (the first call's parts double: 2, 2, 4, the rest)
+        assert [n for _, n in first] == [2, 2, 4, 24], first
+        # (the split trial is the first learned pass of its mode, the roulette part before it
+        # not counted: learning goes on after the first call)
+        assert counts[0] == ((2, False) if kept == "split" else (1, False)), out
     assert it.run_notes()["estimated_gain_of_splitting_over_roulette"] < splitting.SPLIT_COST
 
 

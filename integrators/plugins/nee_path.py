@@ -36,9 +36,10 @@ The lecture's estimator with each degree of freedom of its last slide as a param
   ``plain``, rays not counted).  By default (``split_policy=auto``) a split pass follows a
   roulette pass that gained enough, and estimates on its first copies what the roulette would
   have given; the render splits while splitting pays, else goes on with roulette only, or
-  plain.  The first render call learns from its first quarter and renders the rest learned
-  (``stats['parts']``); learning stops once the regions hold enough samples (``settled`` in
-  the run record).
+  plain.  While it learns, a render call is rendered in parts of doubling size (1/16, 1/16,
+  1/8, 1/4 of its samples, then the rest; ``stats['parts']``), learning between them, so a
+  mode decided on one part (the plain kernel included) renders the rest of the call;
+  learning stops once the regions hold enough samples (``settled`` in the run record).
 
 With ``heuristic=power, light_selection=uniform, rr=throughput, light_samples=1, split=1`` this is
 the estimator of Mitsuba's built-in ``path`` (tested statistically on the Cornell box).
@@ -171,16 +172,19 @@ class NEEPath(IntegratorTemplate):
         # (the pass's time: only the measured policy uses it)
         timed = self.split_policy == "measured"
         block, stats = None, {}
-        # (a call that starts with nothing learned learns from a first part of its samples and
-        # renders the rest as learned: splitting.EARS.parts)
-        for k, part in enumerate(self.ears.parts(spp)):
+        # (while learning, a call is rendered in parts of doubling size, learning between them:
+        # splitting.EARS.part; a part in the plain mode runs this integrator's own kernel)
+        done, k = 0, 0
+        while done < spp:
+            part = self.ears.part(spp, done, k)
             wave = splitting.Wavefront(self, self.ears, self.max_lanes)
             mode = self.ears.mode
             sub_seed = int(seed) if k == 0 else splitting.seed_mix(int(seed), k, 0x5B)
             with splitting.pass_clock() if timed else contextlib.nullcontext([0.0]) as seconds:
                 block = wave.render(scene, sensor, sub_seed, part, block)
-            if self.ears.learning:
+            if self.ears.learning and mode != "plain":
                 self.ears.learn(part, seconds[0])
+            done, k = done + part, k + 1
             for key, v in wave.stats.items():     # (largest or summed over the parts)
                 if key in ("max_lanes", "bounces"):
                     stats[key] = max(stats.get(key, 0), v)

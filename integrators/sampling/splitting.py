@@ -52,9 +52,9 @@ value would spread a light's value over its neighbours, whose variance then look
 the last pass, its second moment and cost.  Between passes (:meth:`EARS.learn`) each region gets
 its two factors sqrt(M C / (V c)) and sqrt(Var C / (V c)); statistics then decay by ``DECAY`` so
 that what is learned follows the changing policy.  Until the scene has ``MIN_VISITS`` copies, and
-in the first pass (the first ``FIRST_PART`` of the first render call, :meth:`EARS.parts`: the rest
-of that call is rendered learned, so these samples, the noisiest, are a small share of the image),
-a vertex has n = 1 and its copy applies the classic throughput rule after its BSDF sample (from
+in the first pass (the first part of the first render call, :meth:`EARS.part`: the rest of that
+call is rendered in the parts after it, learned, so these samples, the noisiest, are a small share
+of the image), a vertex has n = 1 and its copy applies the classic throughput rule after its BSDF sample (from
 ``rr_depth`` on, survival min(max(beta) eta^2, 0.95) with the sample's weight in beta), as
 Mitsuba's ``path`` does: applied before the sample, the rule lags one bounce behind and traces a
 fifth more rays (4.5 against 5.5 continuations per camera sample in the indirect room).  The
@@ -311,9 +311,20 @@ from .roulette import roulette, throughput_survival
 LEARN_DEPTH = 2
 #: copies the scene needs before learned factors replace the throughput rule
 MIN_VISITS = 32
-#: share of a call's samples rendered classic where it starts with nothing learned (the rest
-#: of the call is rendered learned, :meth:`EARS.parts`; 1: the whole call classic)
-FIRST_PART = 0.25
+#: a render call that learns is rendered in parts, learning between them (:meth:`EARS.part`):
+#: the first this share of the call's samples (1: the whole call in one part), each later one as
+#: many samples as the parts before it, the ``LEARN_PARTS``-th the rest.  So the mode a part's
+#: estimate decides (the plain kernel where learning does not pay) takes effect within the
+#: call, and a render of one call (``mi.render(..., spp=N)``) is not rendered in a mode that
+#: its first part already found worse.  Before (a quarter of the first call classic, the rest
+#: learned in one part), one call of 256 spp at 96 px was 0.61x ``nee_path``'s efficiency on
+#: Veach's MIS scene, 0.45x on ``small_light`` and 0.76x on the lamp in a glass shade (the
+#: learned kernel's 1.3-1.5x time on three quarters of the samples); with the parts 0.68x,
+#: 0.63x and 0.88x (3 repeats; the rest, 10-30 ms of two learning parts' tracing and
+#: learning, is fixed per call), the dark scene around a bright light 1.27x -> 3.5x (its
+#: split trial and the settling within the call), the indirect room 1.22x -> 1.32x
+FIRST_PART = 1 / 16
+LEARN_PARTS = 5
 #: copies the cell of the median copy holds (:func:`median_copy_cell`, over the fine cells, their
 #: statistics as decayed, after a learned pass) when learning stops: the later passes keep the
 #: factors and record nothing (the records cost 8 % of a roulette pass in the indirect room,
@@ -526,17 +537,39 @@ class EARS:
         self.pass_s2c = dr.zeros(mi.Float, self.shape[0] * self.shape[1])
         self.pass_cost_c = 0.0
 
-    def parts(self, spp: int) -> list:
-        """The samples per pixel of a render call's parts, learning between them.  A call that
-        starts with nothing learned (``classic``) renders ``FIRST_PART`` of its samples (two per
-        pixel at least: one measures no variance) classic, learns, and renders the rest in the
-        mode learned, so that the classic pass, whose samples are the noisiest, is a small
-        share of the image and the learned roulette is tried (and the plain kernel chosen,
-        where it does not pay) within the first call."""
-        if self.mode != "classic" or not self.recording or spp < 4 or FIRST_PART >= 1:
-            return [spp]
+    def part(self, spp: int, done: int, k: int) -> int:
+        """The samples per pixel of part ``k`` of a render call of ``spp``, ``done`` of them
+        rendered.  While a part is to decide the mode (:attr:`deciding`) a call is rendered in
+        parts of doubling size (the first ``FIRST_PART`` of the call, two per pixel at least:
+        one measures no variance; then as many as rendered so far, the ``LEARN_PARTS``-th the
+        rest), learning between them, so that the mode a part's estimate decides (the learned
+        roulette, splitting, or the plain kernel) renders the rest of the call; else the rest
+        in one part."""
+        left = spp - done
+        if not self.deciding or k + 1 >= LEARN_PARTS:
+            return left
         first = max(2, int(round(spp * FIRST_PART)))
-        return [first, spp - first]
+        size = min(first if k == 0 else done, left)
+        return left if left - size < 2 else size
+
+    @property
+    def deciding(self) -> bool:
+        """Whether the next pass, learning, decides the mode of the ones after it: the classic
+        pass (nothing learned), a roulette pass before any has estimated the throughput rule
+        (policies ``never`` and ``auto``: the plain kernel or not), ``auto``'s split trial,
+        ``measured``'s passes until each learned mode has been timed once.  Later passes
+        renew the estimates too, but a call is then rendered in one pass: the statistics
+        decay by ``DECAY`` after every pass, whatever its size, so parts in every call would
+        shorten what the regions remember (the indirect room, 16 px, calls of 32 spp in parts
+        while learning: 13 learned passes and not settled after three calls)."""
+        if not self.recording or self.mode == "plain":
+            return False
+        if self.mode == "classic":
+            return True
+        if self.policy == "measured":
+            return any(m not in self.measured for m in LEARNED_MODES)
+        return (self.mode == "roulette" and self.gain is None and self.policy != "always") \
+            or (self.mode == "split" and self.split_gain is None and self.policy == "auto")
 
     @property
     def recording(self) -> bool:
@@ -938,13 +971,16 @@ class Wavefront:
     # ---- the pass ------------------------------------------------------------------------
     def render(self, scene, sensor, seed: int, spp: int, block=None):
         """Render ``spp`` samples per pixel into ``block`` (default: a new one of the film's);
-        returns the block."""
+        returns the block.  In the ``plain`` mode (a part of a call after the learned roulette
+        was found not to pay, :meth:`EARS.part`) the integrator's own kernel (``sample``: the
+        throughput rule, no records, its rays not counted)."""
         from mitsuba.ad.integrators.common import ADIntegrator
         film = sensor.film()
         h, w = film_shape(film)
         self.ears.film((h, w), sensor_view(sensor))
         total = w * h * spp
         kernel = self.replicated == 0
+        plain = self.ears.mode == "plain"
         demand = min(max(self.ears.lane_demand, 2.0), 2.0 * self.ears.split_max + 1.0)
         batch = self.max_lanes if kernel else max(1, int(self.max_lanes / (1.1 * demand)))
         self._demand = 0.0
@@ -957,13 +993,19 @@ class Wavefront:
             # (the offset opaque: a literal would compile the kernel again for every batch)
             idx = dr.arange(mi.UInt32, n) + dr.opaque(mi.UInt32, b0)
             ray, weight, pos, pixel = self.camera_rays(sensor, sampler, idx, spp)
-            if kernel:
+            if plain:       # (the integrator's own kernel, the throughput rule)
+                L, valid, _ = self.integ.sample(scene, sampler, ray)
+            elif kernel:
                 L, valid = self.kernel_batch(scene, sampler, ray, pixel)
             else:
                 L, valid = self.batch(scene, sampler, ray, pixel, seed, b0)
             ADIntegrator._splat_to_block(block, film, pos, value=L * weight, weight=1.0,
                                          alpha=dr.select(valid, mi.Float(1), mi.Float(0)),
                                          aovs=[], wavelengths=ray.wavelengths)
+            self.stats["batches"] += 1
+            if plain:       # (nothing learned from it, its rays not counted)
+                dr.eval(block.tensor())
+                continue
             # (the pixel in the units of the paths' throughputs, whose ratio to it is w: the
             # radiance along the camera ray, without the sensor's weight, which in spectral
             # variants is the wavelength sample's importance weight, tens of times the radiance)
@@ -972,7 +1014,6 @@ class Wavefront:
             dr.scatter_reduce(dr.ReduceOp.Add, self.ears.pass_s2, lum * lum, pixel, mode=DIRECT)
             dr.eval(block.tensor(), self.ears.pass_s1, self.ears.pass_s2, self._totals,
                     self._pred, self.ears.pass_s2c)
-            self.stats["batches"] += 1
             self.stats["camera_samples"] += n
         self.kernel_totals()
         self.ears.lane_demand = self._demand
