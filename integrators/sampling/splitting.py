@@ -53,9 +53,9 @@ the last pass, its second moment and cost.  Between passes (:meth:`EARS.learn`) 
 its two factors sqrt(M C / (V c)) and sqrt(Var C / (V c)); statistics then decay by ``DECAY`` so
 that what is learned follows the changing policy.  Until the scene has ``MIN_VISITS`` copies, and
 in the first pass (the first part of the first render call, :meth:`EARS.part`: the rest of that
-call is rendered in the parts after it, learned, so these samples, the noisiest, are a small share
-of the image), a vertex has n = 1 and its copy applies the classic throughput rule after its BSDF sample (from
-``rr_depth`` on, survival min(max(beta) eta^2, 0.95) with the sample's weight in beta), as
+call is rendered in the parts after it, learned, so these samples, the noisiest, are a small
+share of the image), a vertex has n = 1 and its copy applies the classic throughput rule after
+its BSDF sample (from ``rr_depth`` on, survival min(max(beta) eta^2, 0.95) with the sample's weight in beta), as
 Mitsuba's ``path`` does: applied before the sample, the rule lags one bounce behind and traces a
 fifth more rays (4.5 against 5.5 continuations per camera sample in the indirect room).  The
 learned state lives on the integrator per scene, across the passes of ``render --spp`` or
