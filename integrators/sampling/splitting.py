@@ -55,14 +55,15 @@ that what is learned follows the changing policy.  Until the scene has ``MIN_VIS
 in the first pass (the first part of the first render call, :meth:`EARS.part`: the rest of that
 call is rendered in the parts after it, learned, so these samples, the noisiest, are a small
 share of the image), a vertex has n = 1 and its copy applies the classic throughput rule after
-its BSDF sample (from ``rr_depth`` on, survival min(max(beta) eta^2, 0.95) with the sample's weight in beta), as
-Mitsuba's ``path`` does: applied before the sample, the rule lags one bounce behind and traces a
-fifth more rays (4.5 against 5.5 continuations per camera sample in the indirect room).  The
-learned state lives on the integrator per scene, across the passes of ``render --spp`` or
-``--time``.  Learning stops once the cells hold enough copies (``SETTLED_COPIES`` in the cell of
-the median copy, :func:`median_copy_cell`, after ``SETTLED_PASSES`` learned passes in the same
-mode): the later passes keep the factors and record nothing (``EARS.settled``, in the run record),
-which takes the records' cost out of most of a long render (indirect room, 96 px, 512 spp in
+its BSDF sample (from ``rr_depth`` on, survival min(max(beta) eta^2, 0.95) with the sample's
+weight in beta), as Mitsuba's ``path`` does: applied before the sample, the rule lags one
+bounce behind and traces a fifth more rays (4.5 against 5.5 continuations per camera sample in
+the indirect room).  The learned state lives on the integrator per scene, across the passes
+of ``render --spp`` or ``--time``.  Learning stops once the cells hold enough copies
+(``SETTLED_COPIES`` in the cell of the median copy, :func:`median_copy_cell`, after
+``SETTLED_PASSES`` learned passes in the same mode): the later passes keep the factors and
+record nothing (``EARS.settled``, in the run record), which takes the records' cost out of most
+of a long render (indirect room, 96 px, 512 spp in
 doubling passes: 1.32x -> 1.42x ``nee_path``'s efficiency, before the first call's parts).  The
 count is taken where the copies are, not over the cells: where the learned roulette ends most
 copies early (the dark scene with a bright light) thousands of cells are each visited by a few
