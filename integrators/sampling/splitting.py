@@ -318,12 +318,14 @@ MIN_VISITS = 32
 #: estimate decides (the plain kernel where learning does not pay) takes effect within the
 #: call, and a render of one call (``mi.render(..., spp=N)``) is not rendered in a mode that
 #: its first part already found worse.  Before (a quarter of the first call classic, the rest
-#: learned in one part), one call of 256 spp at 96 px was 0.61x ``nee_path``'s efficiency on
-#: Veach's MIS scene, 0.45x on ``small_light`` and 0.76x on the lamp in a glass shade (the
-#: learned kernel's 1.3-1.5x time on three quarters of the samples); with the parts 0.68x,
-#: 0.63x and 0.88x (3 repeats; the rest, 10-30 ms of two learning parts' tracing and
-#: learning, is fixed per call), the dark scene around a bright light 1.27x -> 3.5x (its
-#: split trial and the settling within the call), the indirect room 1.22x -> 1.32x
+#: learned in one part, also where that part's own estimate found learning not worth it), one
+#: call at 96 px (``benchmarks.ears --single``, 4 repeats, efficiency relative to
+#: ``nee_path`` at 32/128/512 spp) was 0.60/0.59/0.60x on Veach's MIS scene, 0.50/0.57/0.96x
+#: on ``small_light``, 0.66/0.78/0.72x on the lamp in a glass shade and 1.12/1.11/1.13x in the
+#: indirect room; with the parts 0.54/0.68/0.83x, 0.63/0.85/1.00x, 0.86/0.92/0.98x and
+#: 1.22/1.31/1.40x (what is left where learning does not pay: the learning parts at 1.5-1.8x
+#: the plain kernel's time per sample on short paths, and 15-25 ms per call of tracing and
+#: learning)
 FIRST_PART = 1 / 16
 LEARN_PARTS = 5
 #: copies the cell of the median copy holds (:func:`median_copy_cell`, over the fine cells, their
@@ -561,8 +563,8 @@ class EARS:
         ``measured``'s passes until each learned mode has been timed once.  Later passes
         renew the estimates too, but a call is then rendered in one pass: the statistics
         decay by ``DECAY`` after every pass, whatever its size, so parts in every call would
-        shorten what the regions remember (the indirect room, 16 px, calls of 32 spp in parts
-        while learning: 13 learned passes and not settled after three calls)."""
+        shorten what the regions remember (the indirect room, 24 px, calls of 32 spp in parts
+        while learning: 13 learned passes in three calls, not settled)."""
         if not self.recording or self.mode == "plain":
             return False
         if self.mode == "classic":
