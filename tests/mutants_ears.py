@@ -184,4 +184,9 @@ MUTANTS = [
      "size = min(first if k == 0 else done, left)",
      "size = min(first, left)",
      ["test_ears.py::test_auto_policy_tries_splitting_then_keeps_what_pays"]),
+    # a deciding part split off whatever its fixed cost against the samples left
+    ("ears-part-cost-ignored", _S,
+     "if left * per_spp * (1.0 - 1.0 / max(KERNEL_COST, 1.0)) < fixed:",
+     "if left * per_spp * (1.0 - 1.0 / max(KERNEL_COST, 1.0)) < 0.0:",
+     ["test_ears.py::test_parts_weigh_their_fixed_cost"]),
 ]

@@ -52,6 +52,13 @@ def random_ears(lo=0.1, hi=8.0, **kw):
     return it
 
 
+@pytest.fixture
+def fixed_parts(monkeypatch):
+    """A call's deciding parts of the sizes ``EARS.part`` gives them without weighing their
+    measured fixed cost (which depends on this host's timings)."""
+    monkeypatch.setattr(splitting, "WEIGH_PART_COST", False)
+
+
 @pytest.mark.parametrize("max_depth", [2, 4])
 def test_closed_box_random_factors_every_vertex(max_depth):
     # 256 spp per batch: each camera sample already averages many copies (4 on average per
@@ -89,7 +96,7 @@ def test_closed_box_random_factors_roulette_kernel():
     assert it.stats["mode"] == "roulette" and it.stats["max_lanes"] == 0
 
 
-def test_modes_tried_then_measured():
+def test_modes_tried_then_measured(fixed_parts):
     """split_policy=measured: the classic first part of the first call (nothing learned), a
     roulette-only rest of it, then a splitting pass, then the learned mode measured more
     efficient."""
@@ -106,7 +113,7 @@ def test_modes_tried_then_measured():
 
 
 @pytest.mark.parametrize("scene_name", ["cornell_box", "ears_dark_bright"])
-def test_never_policy_roulette_only(scene_name):
+def test_never_policy_roulette_only(scene_name, fixed_parts):
     """split_policy=never: the first call classic for a sixteenth of its samples, then a
     sixteenth with the learned roulette in one kernel (no replication: no lanes held), and
     from then on, the rest of that call included, as that roulette part compared them, the
@@ -127,7 +134,7 @@ def test_never_policy_roulette_only(scene_name):
     assert it.ears.passes == 4
 
 
-def test_learning_settles_then_records_nothing(monkeypatch):
+def test_learning_settles_then_records_nothing(monkeypatch, fixed_parts):
     """Once the cell of the median copy holds ``SETTLED_COPIES`` copies after ``SETTLED_PASSES``
     (2) learned passes (the first call's learned parts count one each) learning stops: the
     next pass keeps the factors and records nothing, its pixels still counted; the run record
@@ -177,7 +184,7 @@ def test_learning_settles_then_records_nothing(monkeypatch):
     assert e.gain is None and e.split_gain is None
 
 
-def test_pixel_state_follows_the_view(monkeypatch):
+def test_pixel_state_follows_the_view(monkeypatch, fixed_parts):
     """The per-pixel state (the pixels' values the factors are relative to, and with it the
     settling) belongs to one view: a second sensor with a film of the same size and the same
     pose keeps it, one moved starts again from a classic pass (the regions' statistics, in
@@ -236,7 +243,7 @@ def test_plain_passes_are_nee_path():
     assert np.allclose(img, ref, rtol=1e-5, atol=1e-6)
 
 
-def test_plain_part_within_a_call(monkeypatch):
+def test_plain_part_within_a_call(monkeypatch, fixed_parts):
     """A call whose roulette part finds the learned roulette not worth its kernel renders the
     rest of the call with the integrator's own kernel (the throughput rule, through the
     wavefront's camera samples, into the same block): H0, the image is unbiased against
@@ -386,7 +393,7 @@ def test_roulette_estimated_on_the_split_paths(scene_name, monkeypatch):
     assert split[:, 0].mean() > 1.05 * rl[:, 0].mean(), (split[:, 0], rl[:, 0])
 
 
-def test_auto_policy_tries_splitting_then_keeps_what_pays():
+def test_auto_policy_tries_splitting_then_keeps_what_pays(fixed_parts):
     """split_policy=auto: classic, then a roulette pass (which estimates the throughput rule),
     then, where the roulette gains enough, a split pass (which estimates the roulette), all
     parts of the first call; the render (the rest of that call included) goes on in the mode
@@ -414,6 +421,34 @@ def test_auto_policy_tries_splitting_then_keeps_what_pays():
         # not counted: learning goes on after the first call)
         assert counts[0] == ((2, False) if kept == "split" else (1, False)), out
     assert it.run_notes()["estimated_gain_of_splitting_over_roulette"] < splitting.SPLIT_COST
+
+
+def test_parts_weigh_their_fixed_cost(monkeypatch):
+    """A deciding part after a call's first is split off only where the samples left are worth
+    its fixed cost: their running time in the learned kernel (the last part's per sample) times
+    the share 1 - 1 / KERNEL_COST a switch of kernel could save, against the last part's fixed
+    seconds.  The rule on given costs, then in a render where no switch saves anything
+    (KERNEL_COST 1): the classic part, then the rest in one roulette part, with the part's
+    cost measured."""
+    scene = mi.load_file(str(ROOT / "scenes" / "cornell_box.xml"), res="16")
+    e = splitting.EARS(scene, 0.05, 8, 5, policy="never")
+    assert e.deciding and e.part_cost is None
+    assert [e.part(32, 0, 0), e.part(32, 2, 1)] == [2, 2]
+    share = 1.0 - 1.0 / splitting.KERNEL_COST
+    e.part_cost = (0.010, 0.010 / (30 * share) * 0.9)     # (saving 0.9x the fixed cost)
+    assert [e.part(32, 0, 0), e.part(32, 2, 1), e.part(64, 2, 1)] == [2, 30, 2]
+    e.part_cost = (0.010, 0.010 / (30 * share) * 1.1)
+    assert e.part(32, 2, 1) == 2
+    monkeypatch.setattr(splitting, "WEIGH_PART_COST", False)
+    e.part_cost = (1.0, 0.0)
+    assert e.part(32, 2, 1) == 2
+    monkeypatch.setattr(splitting, "WEIGH_PART_COST", True)
+    monkeypatch.setattr(splitting, "KERNEL_COST", 1.0)
+    it = ears(max_depth=6, split_policy="never")
+    mi.render(scene, integrator=it, spp=32, seed=1)
+    assert it.stats["parts"] == [("classic", 2), ("roulette", 30)], it.stats
+    fixed, per_spp = it.ears.part_cost
+    assert fixed > 0.0 and per_spp > 0.0
 
 
 def test_auto_policy_decisions(monkeypatch):

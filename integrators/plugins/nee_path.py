@@ -48,6 +48,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import time
 
 import drjit as dr
 import mitsuba as mi
@@ -174,16 +175,22 @@ class NEEPath(IntegratorTemplate):
         block, stats = None, {}
         # (while learning, a call is rendered in parts of doubling size, learning between them:
         # splitting.EARS.part; a part in the plain mode runs this integrator's own kernel)
+        # (a deciding part is timed: its fixed cost decides whether another part pays)
         done, k = 0, 0
+        self.ears.part_cost = None
         while done < spp:
             part = self.ears.part(spp, done, k)
             wave = splitting.Wavefront(self, self.ears, self.max_lanes)
             mode = self.ears.mode
             sub_seed = int(seed) if k == 0 else splitting.seed_mix(int(seed), k, 0x5B)
-            with splitting.pass_clock() if timed else contextlib.nullcontext([0.0]) as seconds:
+            clock = timed or self.ears.deciding
+            with splitting.pass_clock() if clock else contextlib.nullcontext([0.0]) as seconds:
                 block = wave.render(scene, sensor, sub_seed, part, block)
+            t0 = time.perf_counter()
             if self.ears.learning and mode != "plain":
-                self.ears.learn(part, seconds[0])
+                self.ears.learn(part, seconds[0] if timed else 0.0)
+            if clock and seconds[1] is not None:
+                self.ears.part_cost = (seconds[1] + time.perf_counter() - t0, seconds[2] / part)
             done, k = done + part, k + 1
             for key, v in wave.stats.items():     # (largest or summed over the parts)
                 if key in ("max_lanes", "bounces"):

@@ -328,6 +328,10 @@ MIN_VISITS = 32
 #: learning)
 FIRST_PART = 1 / 16
 LEARN_PARTS = 5
+#: whether :meth:`EARS.part` weighs a part's fixed cost against the samples left before
+#: splitting off another deciding part (tests of the parts' sizes turn it off: it depends on
+#: measured times)
+WEIGH_PART_COST = True
 #: copies the cell of the median copy holds (:func:`median_copy_cell`, over the fine cells, their
 #: statistics as decayed, after a learned pass) when learning stops: the later passes keep the
 #: factors and record nothing (the records cost 8 % of a roulette pass in the indirect room,
@@ -425,9 +429,12 @@ FLUSH = dr.ReduceMode.Expand
 def pass_clock():
     """Seconds of the block, all launched work finished, less the time Dr.Jit spent compiling
     kernels (a mode's first pass compiles its kernels: counted, a fast mode would read slow on
-    a small pass).  Yields a one-element list that holds the seconds after the block.  Where the
-    caller already records the kernel history, it is left alone and the seconds are wall time."""
-    out = [0.0]
+    a small pass), and its fixed cost: the seconds not spent running kernels nor compiling them
+    in the LLVM backend (tracing, code generation, launches: what a part of a render call costs
+    whatever its size, :meth:`EARS.part`) and the kernels' running time.  Yields a list that
+    holds the three after the block.  Where the caller already records the kernel history, it
+    is left alone, the seconds are wall time and the other two None."""
+    out = [0.0, None, None]
     own = not dr.flag(dr.JitFlag.KernelHistory)
     if own:
         dr.set_flag(dr.JitFlag.KernelHistory, True)
@@ -439,10 +446,12 @@ def pass_clock():
         dr.sync_thread()
         out[0] = time.perf_counter() - t0
         if own:
-            compiling = sum(k.get("codegen_time", 0.0) + k.get("backend_time", 0.0)
-                            for k in dr.kernel_history()) / 1000.0
+            hist = dr.kernel_history()
             dr.set_flag(dr.JitFlag.KernelHistory, False)
-            out[0] = max(out[0] - compiling, 0.0)
+            codegen, backend, running = (sum(k.get(key, 0.0) for k in hist) / 1000.0 for key in
+                                         ("codegen_time", "backend_time", "execution_time"))
+            out[1], out[2] = max(out[0] - backend - running, 0.0), running
+            out[0] = max(out[0] - codegen - backend, 0.0)
 
 
 def seed_mix(*xs: int) -> int:
@@ -514,6 +523,9 @@ class EARS:
         self.learned_passes = 0
         #: the learned mode those passes ran in
         self.learned_mode = None
+        #: the last part of the current render call (:meth:`part`): (its fixed seconds, its
+        #: kernels' running seconds per sample per pixel); None before the call's first part
+        self.part_cost = None
 
     # ---- per-pixel state -----------------------------------------------------------------
     def film(self, shape, view=None):
@@ -547,10 +559,19 @@ class EARS:
         one measures no variance; then as many as rendered so far, the ``LEARN_PARTS``-th the
         rest), learning between them, so that the mode a part's estimate decides (the learned
         roulette, splitting, or the plain kernel) renders the rest of the call; else the rest
-        in one part."""
+        in one part.  A part after the first is split off only where the samples left are
+        worth its fixed cost (``part_cost``, the last part's: tracing, code generation,
+        launches and learning; ``WEIGH_PART_COST``): a decision switches the rest to a kernel
+        that saves at most the share 1 - 1 / ``KERNEL_COST`` of the learned kernel's running
+        time, so where that saving on the samples left is less, the rest is one part, and its
+        estimate decides the next call's mode."""
         left = spp - done
         if not self.deciding or k + 1 >= LEARN_PARTS:
             return left
+        if k > 0 and WEIGH_PART_COST and self.part_cost is not None:
+            fixed, per_spp = self.part_cost
+            if left * per_spp * (1.0 - 1.0 / max(KERNEL_COST, 1.0)) < fixed:
+                return left
         first = max(2, int(round(spp * FIRST_PART)))
         size = min(first if k == 0 else done, left)
         return left if left - size < 2 else size
