@@ -38,8 +38,9 @@ The lecture's estimator with each degree of freedom of its last slide as a param
   have given; the render splits while splitting pays, else goes on with roulette only, or
   plain.  While it learns, a render call is rendered in parts of doubling size (1/16, 1/16,
   1/8, 1/4 of its samples, then the rest; ``stats['parts']``), learning between them, so a
-  mode decided on one part (the plain kernel included) renders the rest of the call;
-  learning stops once the regions hold enough samples (``settled`` in the run record).
+  mode decided on one part (the plain kernel included) renders the rest of the call, where
+  the samples left are worth a part's measured fixed cost; learning stops once the regions
+  hold enough samples (``settled`` in the run record).
 
 With ``heuristic=power, light_selection=uniform, rr=throughput, light_samples=1, split=1`` this is
 the estimator of Mitsuba's built-in ``path`` (tested statistically on the Cornell box).

@@ -524,7 +524,8 @@ class EARS:
         #: the learned mode those passes ran in
         self.learned_mode = None
         #: the last part of the current render call (:meth:`part`): (its fixed seconds, its
-        #: kernels' running seconds per sample per pixel); None before the call's first part
+        #: kernels' running seconds per sample per pixel, i.e. per spp over the film); None
+        #: before the call's first part
         self.part_cost = None
 
     # ---- per-pixel state -----------------------------------------------------------------
