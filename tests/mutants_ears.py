@@ -31,8 +31,8 @@ MUTANTS = [
      "        c += beta * L_nee\n", "        c += beta / dr.maximum(w, 1e-3) * L_nee\n", _T),
     # one bounce too many (max_depth off by one)
     ("ears-depth-limit-off-by-one", _S,
-     "alive = act & si_n.is_valid() & (depth + 1 < limit)\n        L_nee",
-     "alive = act & si_n.is_valid() & (depth < limit)\n        L_nee", _T),
+     "alive = act_or_here & si_n.is_valid() & (depth + 1 < limit)\n        L_nee",
+     "alive = act_or_here & si_n.is_valid() & (depth < limit)\n        L_nee", _T),
     # the tail's roulette without its 1/n
     ("ears-tail-roulette-uncompensated", _S,
      "            beta *= copy_weight(q)\n            if dr.hint(len(regs)",
@@ -49,13 +49,13 @@ MUTANTS = [
     ("ears-tail-copies-share-sample", _S,
      "            if fresh is not None:", "            if False:", _T),
     # the first hit's copies in the kernel: a copy after the first restarts without the copy
-    # weight 1/n, or without a BSDF sample of its own (it would take the one drawn at the
-    # vertex where the last copy ended)
+    # weight 1/n, or without light samples and a BSDF sample of its own at the first hit (it
+    # would take the BSDF sample drawn at the vertex where the last copy ended)
     ("ears-kernel-copy-restarts-unweighted", _S,
      "beta = dr.select(restart, mi.Spectrum(w0), beta)",
      "beta = dr.select(restart, mi.Spectrum(1.0), beta)", _T),
     ("ears-kernel-copy-reuses-sample", _S,
-     "            fresh = restart\n", "            fresh = mi.Bool(False)\n", _T),
+     "            stay = restart\n", "            stay = mi.Bool(False)\n", _T),
     # contributions written instead of added: the copies of a camera sample overwrite each
     # other (and the first hit's emission)
     ("ears-contribution-overwrites", _S,
@@ -98,7 +98,7 @@ MUTANTS = [
     # the first hit's 1/n kept (the roulette's second moment read low), every copy counted
     # (read high), the throughput rule taken for the learned roulette behind the first hit
     ("ears-roulette-estimate-copy-weight", _S,
-     "lc = luminance(c) * scale\n", "lc = luminance(c)\n",
+     "predict_add(Y, S, K, luminance(c) * scale,", "predict_add(Y, S, K, luminance(c),",
      ["test_ears.py::test_roulette_estimated_on_the_split_paths"]),
     ("ears-roulette-estimate-every-copy", _S,
      "on = first if versus else mi.Bool(True)", "on = mi.Bool(True)",
@@ -184,6 +184,20 @@ MUTANTS = [
      "size = min(first if k == 0 else done, left)",
      "size = min(first, left)",
      ["test_ears.py::test_auto_policy_tries_splitting_then_keeps_what_pays"]),
+    # the first hit's light samples, in the megakernel, counted whole by the first copy
+    # instead of weighted 1/n like the rest of it (the unit of the copies is the light samples
+    # and the continuation)
+    ("ears-first-light-unweighted", _S,
+     "        c_nee = beta * L_nee\n", "        c_nee = L_nee\n", _T),
+    # a restarting copy of the first hit takes no light samples there (the continuation alone)
+    ("ears-restart-without-light", _S,
+     "        c += beta * L_nee\n        return",
+     "        c += dr.select(here, 0.0, beta) * L_nee if stay is not None else beta * L_nee\n"
+     "        return", _T),
+    # the replicated first bounce without the first hit's light samples
+    ("ears-replicated-first-without-light", _S,
+     "return si_n, beta, eta, depth, alive, c + c0, k + k0, act",
+     "return si_n, beta, eta, depth, alive, c, k + k0, act", _T),
     # a deciding part split off whatever its fixed cost against the samples left
     ("ears-part-cost-ignored", _S,
      "if left * per_spp * (1.0 - 1.0 / max(KERNEL_COST, 1.0)) < fixed:",

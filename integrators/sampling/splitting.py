@@ -1,14 +1,17 @@
 r"""Efficiency-aware Russian roulette and splitting (EARS) with real path replication.
 
-**The decision.**  At every vertex x of a path the emission found there and the light samples
-taken there (:meth:`VertexEstimator.direct`, MIS-weighted) are counted once, for the lane that
-reached x.  The rest, the light reflected at x through the BSDF sample, L_r(x), is estimated by
-n(x) independent copies of the continuation (a BSDF sample, its ray, the emission it finds, and
-everything behind it), each weighted 1/n(x).  n < 1 is Russian roulette (one copy with
-probability n), n > 1 splitting into floor(n) or ceil(n) copies by stochastic rounding
-(floor(n + u), u uniform), so the expected number of copies is n and the estimate is unbiased
-for *any* n > 0 chosen before the rounding (tested with random n in [0.1, 8] at every vertex).
-Roulette never drops a vertex's direct light, only what lies behind it.
+**The decision.**  At every vertex x of a path the emission found there is counted once, for
+the lane that reached x.  The rest, the light x reflects, L_r(x), is estimated by n(x)
+independent copies, each weighted 1/n(x): at the first hit a copy is the vertex's light samples
+(:meth:`VertexEstimator.direct`, MIS-weighted) and its continuation (a BSDF sample, its ray,
+the emission it finds, and everything behind it), as in the authors' implementation, so that
+where the light samples carry the noise (direct light) the copies average it; at the deeper
+vertices the light samples are taken once, by the lane that reached the vertex, and a copy is
+the continuation.  n < 1 is Russian roulette (one copy with probability n), n > 1 splitting
+into floor(n) or ceil(n) copies by stochastic rounding (floor(n + u), u uniform), so the
+expected number of copies is n and the estimate is unbiased for *any* n > 0 chosen before the
+rounding (tested with random n in [0.1, 8] at every vertex).  Roulette at the first hit drops
+its light samples with the rest; past it, only what lies behind a vertex.
 
 The efficiency-optimal n (Rath, Grittmann, Herholz, Weier, Slusallek 2022, "EARS:
 Efficiency-Aware Russian Roulette and Splitting"; Vorba & Krivanek 2016, ADRRS): the work
@@ -180,12 +183,16 @@ paths, and in the Cornell box the variance change with the wrong sign (measured 
 that also counted the deeper vertices twice, so no magnitudes are quoted).
 
 **The first hit's copies in the megakernel.**  With ``split_depth`` 1 a lane makes floor(n + u)
-copies of its first hit's continuation and runs them one after another: when a copy's path
-ends, the lane restarts from the first hit (kept in registers) with the copy weight 1/n and a
-BSDF sample of its own.  The camera ray and the first hit's light samples are shared, as with
-``nee_path``'s fixed ``split``, and no lane is written, compacted or gathered.  The first hit's
-record sums its copies' L_r, L_r^2 and cost in registers; the deeper records are the first
-copy's.  A SIMD packet runs as long as its longest lane, so lanes that draw different numbers
+copies of its first hit's light samples and continuation and runs them one after another: when
+a copy's path ends, the lane restarts from the first hit (kept in registers) with the copy
+weight 1/n and takes light samples of its own there, with the BSDF sample drawn with them.  The
+camera ray is shared, as with ``nee_path``'s fixed ``split``, and no lane is written, compacted
+or gathered.  The first hit's record sums its copies' L_r, L_r^2 and cost (their light samples
+in) in registers; the deeper records are the first copy's.  (Before 2026-12-07 a copy was the
+continuation alone, the light samples shared: on ``veach_mis``, 64 spp in one call, four such
+copies lowered ``nee_path``'s relMSE 1.47x, four with their own light samples, ``split=4``,
+3.62x in about the same time: ``benchmarks/results/ears_unit``.)  The figures in this
+paragraph were measured with the continuation alone.  A SIMD packet runs as long as its longest lane, so lanes that draw different numbers
 of copies idle; the lanes of a packet are samples of the same pixel, whose n is about the same.
 Side runs, steady state (48 px, 256-spp passes after 8 learning ones, efficiency 1 / (per-pixel
 relative variance x seconds) relative to ``nee_path rr=throughput``; split / roulette only):
@@ -924,6 +931,17 @@ def record_sums(ears, cell, vals, active, mode=DIRECT):
     dr.scatter_reduce(dr.ReduceOp.Max, ears.parent, cell[1], cell[0], active, mode=mode)
 
 
+def predict_add(Y, S, K, lc, k, inv_p, Q, on):
+    """An alternative's estimate (see the module docstring, :meth:`EARS.survivals`) past a
+    contribution ``lc`` (the luminance the pass adds, its weights in) of cost ``k``, where
+    ``on``: its second moment Y, the running S and its cost K."""
+    bare = lc * inv_p
+    Y = Y + dr.select(on, lc * (bare * Q + 2.0 * S), 0.0)
+    S = S + dr.select(on, bare * Q, 0.0)
+    K = K + dr.select(on, k * safe_div(1.0, inv_p * Q), 0.0)
+    return Y, S, K
+
+
 def copy_weight(n):
     """Weight of each copy of a path continued with factor n (floor(n + u) copies): 1/n, so that
     E[copies x weight] = 1 for any n > 0."""
@@ -1103,11 +1121,10 @@ class Wavefront:
             self._next = (mi.Ray3f(ray), pi)
         valid = si.is_valid()
         alive = valid & (1 < limit)
-        # the first hit's light samples, once per camera sample (the copies split only the
-        # continuation)
-        L_nee, k0, _, smooth = self.light(scene, sel, sampler, si, alive)
-        self.L += L0 + L_nee
-        self.cost = dr.zeros(mi.Float, n_cam) + k0
+        # (the first hit's light samples are taken by each of its copies, in the first bounce)
+        smooth = mi.has_flag(si.bsdf().flags(), mi.BSDFFlags.Smooth)
+        self.L += L0
+        self.cost = dr.zeros(mi.Float, n_cam)
         sid = dr.arange(mi.UInt32, n_cam)
         beta = mi.Spectrum(1.0)
         eta = mi.Float(1.0)
@@ -1129,7 +1146,7 @@ class Wavefront:
             bounce += 1
             sampler.seed(dr.opaque(mi.UInt32, seed_mix(seed, b0, bounce)), state["width"])
             si, beta, eta, depth, alive, c, k, act = self.vertex(scene, sel, sampler, state,
-                                                                 limit)
+                                                                 limit, bounce == 1)
             hist = state["hist"]
             # what this lane added to its camera sample, and since each of its records was made
             # (flushed to the camera sample and the records when the lane ends or splits: one
@@ -1166,8 +1183,9 @@ class Wavefront:
     @dr.syntax
     def roulette_kernel(self, scene, sel, sampler, ray, pixel, limit, learn: bool):
         """Every path of a batch in one kernel (Mitsuba's megakernel).  At the first hit
-        floor(n + u) copies of the continuation, each weighted 1/n, run one after another in
-        the lane, each restarting from the first hit with a BSDF sample of its own (n clamped
+        floor(n + u) copies of its light samples and continuation, each weighted 1/n, run one
+        after another in the lane, each restarting from the first hit with light samples and a
+        BSDF sample of its own (n clamped
         to one in ``classic`` and ``roulette`` passes: roulette only); at the later vertices
         roulette with survival min(n, 1).  The records live in registers: the first hit's as
         sums over its copies (L_r, L_r^2, copies, cost), the deeper ones' for the first copy
@@ -1177,8 +1195,7 @@ class Wavefront:
         si, L = self.integ.camera_hit(scene, ray, True)
         valid = si.is_valid()
         alive = valid & (1 < limit)
-        L_nee, cost, pre, smooth = self.light(scene, sel, sampler, si, alive)
-        L += L_nee
+        smooth = mi.has_flag(si.bsdf().flags(), mi.BSDFFlags.Smooth)
         beta, eta, depth = mi.Spectrum(1.0), mi.Float(1.0), mi.UInt32(0)
         n, classic, cell, raw = ears.factor(si, beta, eta, depth, pixel, sampler, alive,
                                             smooth=smooth, raw=True)
@@ -1200,19 +1217,31 @@ class Wavefront:
         # (as wide as the loop: unused, they stay in its state, see record_once)
         zero, one = widen(mi.Float(0.0), alive), widen(mi.Float(1.0), alive)
         Y, S, K, inv_p, Q = zero, mi.Float(zero), mi.Float(zero), one, mi.Float(one)
-        if predict:
-            c0 = luminance(L)
-            Y, S, K = c0 * c0, mi.Float(c0), mi.Float(cost)
-            inv_p, Q = ears.survivals(beta, eta, depth, pre, dr.minimum(n, 1.0), classic, inv_p,
-                                      Q, alive, raw=raw if versus else None)
-        # floor(n + u) copies of the first hit's continuation, each weighted 1/n (n < 1:
-        # roulette), run one after another in the lane
+        # floor(n + u) copies of the first hit's light samples and continuation, each weighted
+        # 1/n (n < 1: roulette), run one after another in the lane
         copies = mi.UInt32(dr.floor(n + sampler.next_1d()))
         alive &= copies > 0
         left = dr.select(alive, copies - 1, 0)
         w0 = copy_weight(n)
         beta *= w0
         blum0 = dr.select(alive, luminance(beta), 0.0)
+        # the first copy's light samples (the others take theirs when they restart)
+        L_nee, cost, pre, smooth = self.light(scene, sel, sampler, si, alive, smooth)
+        c_nee = beta * L_nee
+        L += c_nee
+        if predict:
+            # the camera ray's emission, then the decision at the first hit, after which the
+            # light samples count (before it where the vertex keeps the rule: the rule applies
+            # after the BSDF sample, to the continuation alone)
+            c0 = luminance(L - c_nee)
+            Y, S, K = c0 * c0, mi.Float(c0), mi.Float(0.0)
+            lc = luminance(c_nee) * scale
+            Y, S, K = predict_add(Y, S, K, dr.select(classic, lc, 0.0),
+                                  dr.select(classic, cost, 0.0), inv_p, Q, alive)
+            inv_p, Q = ears.survivals(mi.Spectrum(1.0), eta, depth, pre, dr.minimum(n, 1.0), classic,
+                                      inv_p, Q, alive, raw=raw if versus else None)
+            Y, S, K = predict_add(Y, S, K, dr.select(classic, 0.0, lc),
+                                  dr.select(classic, 0.0, cost), inv_p, Q, alive)
         si0, classic0, cell_first = mi.SurfaceInteraction3f(si), mi.Bool(classic), cell
         # record 0 (the first hit's cells): what the current copy added (S0, R0), and the sums
         # over its finished copies of L_r, L_r^2, copies, cost; records of deeper vertices:
@@ -1221,12 +1250,12 @@ class Wavefront:
         # (all as wide as the loop: in a pass without records or copies they stay unchanged in
         # its state, and a narrow one would have it recorded twice, see record_once)
         fz, uz = widen(mi.Float(0.0), alive), widen(mi.UInt32(0), alive)
-        S0, R0 = fz, mi.Float(fz)
+        S0, R0 = fz + luminance(c_nee), fz + cost
         t1, t2, tn, tR = mi.Float(fz), mi.Float(fz), mi.Float(fz), mi.Float(fz)
         recs = [(mi.UInt32(uz), mi.UInt32(uz), mi.Float(fz), mi.Float(fz), mi.Float(fz))
                 for _ in range(LEARN_DEPTH - 1)]
         first = widen(mi.Bool(True), alive)
-        fresh = widen(mi.Bool(False), alive)
+        stay = widen(mi.Bool(False), alive)
         active = mi.Bool(alive)
         # (counted per lane: an atomic counter shared by all lanes cost a tenth of the kernel)
         traced = mi.UInt32(0)
@@ -1236,21 +1265,18 @@ class Wavefront:
                       exclude=[limit, pixel, si0, classic0, w0, blum0, scale]):
             _, _, si_n, beta, eta, depth, alive, c, k, pre, act, smooth = self.continuation(
                 scene, sel, sampler, si, beta, eta, depth, classic, limit, active, pre,
-                fresh if restarts else None)
+                stay=stay if restarts else None)
             L += c
             cost += k
             traced += dr.select(act, 1, 0)
             n, classic, cell, raw = ears.factor(si_n, beta, eta, depth, pixel, sampler, alive,
                                                 False, smooth, raw=True)
-            q = dr.minimum(n, 1.0)
+            # (a copy that restarted takes the first hit's light samples: nothing decided)
+            q = dr.select(stay, 1.0, dr.minimum(n, 1.0))
             if dr.hint(predict, mode="scalar"):
                 # (a split pass: the first copy only)
                 on = first if versus else mi.Bool(True)
-                lc = luminance(c) * scale
-                bare = lc * inv_p
-                Y += dr.select(on, lc * (bare * Q + 2.0 * S), 0.0)
-                S += dr.select(on, bare * Q, 0.0)
-                K += dr.select(on, k * safe_div(1.0, inv_p * Q), 0.0)
+                Y, S, K = predict_add(Y, S, K, luminance(c) * scale, k, inv_p, Q, on)
                 inv_p2, Q2 = ears.survivals(beta, eta, depth, pre, q, classic, inv_p, Q,
                                             alive & on, scale, raw if versus else None)
                 inv_p, Q = dr.select(on, inv_p2, inv_p), dr.select(on, Q2, Q)
@@ -1280,7 +1306,7 @@ class Wavefront:
                 # the next copy restarts at the first hit
                 restart = end & (left > 0)
                 left -= dr.select(restart, 1, 0)
-                fresh = restart
+                stay = restart
                 si = dr.select(restart, si0, si_n)
                 beta = dr.select(restart, mi.Spectrum(w0), beta)
                 eta = dr.select(restart, 1.0, eta)
@@ -1356,28 +1382,36 @@ class Wavefront:
         self.traced += int(traced[0])
         return int(longest[0])
 
-    def light(self, scene, sel, sampler, si, active):
+    def light(self, scene, sel, sampler, si, active, smooth=None):
         """The light samples at a vertex (:meth:`VertexEstimator.direct`) and their cost, the
-        BSDF sample drawn with them, and whether the BSDF has a smooth lobe: (L, cost, (BSDF
-        sample, its weight), smooth).  A path that goes on alone continues with that sample
-        (:meth:`continuation`'s ``pre``); the copies of a split vertex draw their own."""
+        BSDF sample drawn with them, and whether the BSDF has a smooth lobe (``smooth``, where
+        the caller knows it): (L, cost, (BSDF sample, its weight), smooth).  The continuation
+        from the vertex takes that sample (:meth:`continuation`'s ``pre``), except the copies
+        of a split vertex past the first hit, which draw their own."""
         bsdf = si.bsdf()
         d = self.integ.vertex.direct(scene, sel, sampler, mi.BSDFContext(), si, bsdf, active)
-        smooth = mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
+        if smooth is None:
+            smooth = mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
         k = dr.select(active & smooth & (sel.count > 0), SHADOW_COST, 0.0)
         return dr.select(active, d.L, 0.0), k, (d.bs, d.weight), smooth
 
     def continuation(self, scene, sel, sampler, si, beta, eta, depth, classic, limit, active,
-                     pre=None, fresh=None):
+                     pre=None, fresh=None, stay=None):
         """One copy's continuation from ``si``: a BSDF sample, its ray, the emission it finds
         (MIS-weighted against the light samples at ``si``), and the light samples at the vertex
         it reaches.  ``pre``: the BSDF sample drawn with the light samples at ``si``, used
-        instead of a new one (except where ``fresh``).  Returns (ray, pi, si_next, beta, eta,
-        depth, alive, contribution, cost, the BSDF sample drawn at si_next, whether a ray was
-        traced, whether the BSDF at si_next has a smooth lobe)."""
+        instead of a new one (except where ``fresh``: the copies of a split vertex past the
+        first hit draw their own).  ``stay``: lanes that trace nothing and take the light
+        samples at ``si`` itself (a copy of the first hit restarting there: its unit is the
+        hit's light samples and continuation), their throughput and depth unchanged.  Returns
+        (ray, pi, si_next, beta, eta, depth, alive, contribution, cost, the BSDF sample drawn at
+        si_next, whether a ray was traced, whether the BSDF at si_next has a smooth lobe)."""
         vx = self.integ.vertex
         ctx = mi.BSDFContext()
         bsdf = si.bsdf()
+        beta_in, eta_in, depth_in = beta, eta, depth
+        if stay is not None:
+            go, active = active, active & lnot(stay)
         if pre is None:
             bs, w = bsdf.sample(ctx, si, sampler.next_1d(active), sampler.next_2d(active),
                                 active)
@@ -1399,24 +1433,38 @@ class Wavefront:
         delta = mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta)
         L_w = vx.emission(scene, sel, si, si_n, [vx.n_b * bs.pdf], delta, act)
         c = dr.select(act, beta * L_w, 0.0)
-        alive = act & si_n.is_valid() & (depth + 1 < limit)
+        if stay is not None:
+            here = go & stay
+            si_n = dr.select(here, si, si_n)
+            beta = dr.select(here, beta_in, beta)
+            eta = dr.select(here, eta_in, eta)
+            depth = dr.select(here, depth_in, depth)
+            act_or_here = act | here
+        else:
+            act_or_here = act
+        alive = act_or_here & si_n.is_valid() & (depth + 1 < limit)
         L_nee, k, nxt, smooth = self.light(scene, sel, sampler, si_n, alive)
         c += beta * L_nee
         return (ray, pi, si_n, beta, eta, depth, alive, c, dr.select(act, 1.0, 0.0) + k, nxt,
                 act, smooth)
 
-    def vertex(self, scene, sel, sampler, st, limit):
+    def vertex(self, scene, sel, sampler, st, limit, first: bool):
         """The kernel of one bounce over the live lanes (:meth:`continuation`): the
-        contribution c, the next vertex, and the cost k."""
+        contribution c, the next vertex, and the cost k.  ``first``: the bounce from the first
+        hit, whose copies each take their light samples there too."""
         if "si" in st:
             si = st["si"]
         else:
             si = st["pi"].compute_surface_interaction(st["ray"], mi.RayFlags.All, True)
+        pre, c0, k0 = None, 0.0, 0.0
+        if first:
+            L0, k0, pre, _ = self.light(scene, sel, sampler, si, mi.Bool(True))
+            c0 = st["beta"] * L0
         ray, pi, si_n, beta, eta, depth, alive, c, k, _, act, _ = self.continuation(
             scene, sel, sampler, si, st["beta"], st["eta"], st["depth"], st["classic"], limit,
-            mi.Bool(True))
+            mi.Bool(True), pre)
         self._next = (ray, pi)
-        return si_n, beta, eta, depth, alive, c, k, act
+        return si_n, beta, eta, depth, alive, c + c0, k + k0, act
 
     def replicate(self, st, n, u, cell, alive, recs, record: bool):
         """The next wavefront: each lane with floor(s n + u) copies, each weighted 1/(s n)
