@@ -3,16 +3,18 @@ r"""What a copy at the first hit holds: EARS's split unit against the reference'
     python -m benchmarks.ears_unit [--scenes veach_mis ...] [--res 96] [--spp 64] [--repeats 4]
                                    [--ref-spp 4096] [--out benchmarks/results/ears_unit]
 
-``nee_path rr=adaptive`` splits at the first hit the continuation only: the vertex's light
-samples are taken once, on arrival (:mod:`integrators.sampling.splitting`).  The authors'
-implementation of EARS (Rath et al. 2022, ``recursive_path.cpp``) and ``nee_path split=k``
-put the light samples inside each copy.  With the copies' number fixed, the three give the
-relMSE each unit leaves at the same camera samples:
+Until 42bf9ef ``nee_path rr=adaptive`` split at the first hit the continuation only: the
+vertex's light samples were taken once, on arrival.  The authors' implementation of EARS (Rath
+et al. 2022, ``recursive_path.cpp``) and ``nee_path split=k`` put the light samples inside each
+copy, and since 42bf9ef so does ``rr=adaptive`` (:mod:`integrators.sampling.splitting`).  With
+the copies' number fixed, the three give the relMSE each unit leaves at the same camera samples,
+and the times say what the learned kernel's copies cost against ``split=k``'s:
 
 * ``nee_path``: one continuation (throughput roulette), the baseline;
 * ``split4``: ``nee_path split=4``: four copies, each with its own light samples at the hit;
 * ``ears_n4``: ``rr=adaptive`` with n forced to 4 at every vertex (``split_depth`` 1: four
-  copies of the continuation from the first hit, the hit's light samples once);
+  copies from the first hit, each with its own light samples there; before 42bf9ef four copies
+  of the continuation, the hit's light samples once: ``benchmarks/results/ears_unit_283a320``);
 * ``ears_n1``: the same kernel with n forced to 1 (no roulette, no splitting): its cost.
 
 Each render is one ``mi.render`` call of a fresh integrator, ``--repeats`` seeds (the methods
@@ -91,8 +93,9 @@ def table(results: dict, command: str) -> str:
              "Per scene, the same camera samples in one render call: how much each unit lowers "
              "`nee_path`'s relMSE, and its time (median). `split4`: four copies at the first "
              "hit, each with its own light samples (the reference's unit); `ears_n4`: "
-             "`rr=adaptive` with four copies of the continuation only (the hit's light samples "
-             "once); `ears_n1`: the same kernel, one copy.", "",
+             "`rr=adaptive` with n forced to four: four copies at the first hit in its learned "
+             "kernel (on commits before 42bf9ef of the continuation only, the hit's light "
+             "samples once); `ears_n1`: the same kernel, one copy.", "",
              "| scene | split4 relMSE lower | ears_n4 relMSE lower | split4 s | ears_n4 s "
              "| ears_n1 s | nee_path s |", "|---|---:|---:|---:|---:|---:|---:|"]
     for name, r in results.items():

@@ -191,9 +191,10 @@ or gathered.  The first hit's record sums its copies' L_r, L_r^2 and cost (their
 in) in registers; the deeper records are the first copy's.  (Before 2026-12-07 a copy was the
 continuation alone, the light samples shared: on ``veach_mis``, 64 spp in one call, four such
 copies lowered ``nee_path``'s relMSE 1.47x, four with their own light samples, ``split=4``,
-3.62x in about the same time: ``benchmarks/results/ears_unit``.)  The figures in this
-paragraph were measured with the continuation alone.  A SIMD packet runs as long as its longest lane, so lanes that draw different numbers
-of copies idle; the lanes of a packet are samples of the same pixel, whose n is about the same.
+3.62x in about the same time: ``benchmarks/results/ears_unit_283a320``.)  The figures in this
+paragraph were measured with the continuation alone.  A SIMD packet runs as long as its
+longest lane, so lanes that draw different numbers of copies idle; the lanes of a packet are
+samples of the same pixel, whose n is about the same.
 Side runs, steady state (48 px, 256-spp passes after 8 learning ones, efficiency 1 / (per-pixel
 relative variance x seconds) relative to ``nee_path rr=throughput``; split / roulette only):
 indirect room 1.56/1.40, dark scene with a bright light 1.53/1.74, glossy scene 1.10/1.05,
@@ -1238,8 +1239,8 @@ class Wavefront:
             lc = luminance(c_nee) * scale
             Y, S, K = predict_add(Y, S, K, dr.select(classic, lc, 0.0),
                                   dr.select(classic, cost, 0.0), inv_p, Q, alive)
-            inv_p, Q = ears.survivals(mi.Spectrum(1.0), eta, depth, pre, dr.minimum(n, 1.0), classic,
-                                      inv_p, Q, alive, raw=raw if versus else None)
+            inv_p, Q = ears.survivals(mi.Spectrum(1.0), eta, depth, pre, dr.minimum(n, 1.0),
+                                      classic, inv_p, Q, alive, raw=raw if versus else None)
             Y, S, K = predict_add(Y, S, K, dr.select(classic, 0.0, lc),
                                   dr.select(classic, 0.0, cost), inv_p, Q, alive)
         si0, classic0, cell_first = mi.SurfaceInteraction3f(si), mi.Bool(classic), cell
