@@ -6,9 +6,10 @@ r"""What a copy at the first hit holds: EARS's split unit against the reference'
 Until 42bf9ef ``nee_path rr=adaptive`` split at the first hit the continuation only: the
 vertex's light samples were taken once, on arrival.  The authors' implementation of EARS (Rath
 et al. 2022, ``recursive_path.cpp``) and ``nee_path split=k`` put the light samples inside each
-copy, and since 42bf9ef so does ``rr=adaptive`` (:mod:`integrators.sampling.splitting`).  With
-the copies' number fixed, the three give the relMSE each unit leaves at the same camera samples,
-and the times say what the learned kernel's copies cost against ``split=k``'s:
+copy, and since 42bf9ef so does ``rr=adaptive`` where the first hit splits
+(:mod:`integrators.sampling.splitting`).  With the copies' number fixed, the three give the
+relMSE each unit leaves at the same camera samples, and the times say what the learned
+kernel's copies cost against ``split=k``'s:
 
 * ``nee_path``: one continuation (throughput roulette), the baseline;
 * ``split4``: ``nee_path split=4``: four copies, each with its own light samples at the hit;

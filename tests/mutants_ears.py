@@ -184,11 +184,13 @@ MUTANTS = [
      "size = min(first if k == 0 else done, left)",
      "size = min(first, left)",
      ["test_ears.py::test_auto_policy_tries_splitting_then_keeps_what_pays"]),
-    # the first hit's light samples, in the megakernel, counted whole by the first copy
-    # instead of weighted 1/n like the rest of it (the unit of the copies is the light samples
-    # and the continuation)
+    # the first hit's light samples, in the megakernel, counted whole by the first copy where
+    # it splits instead of weighted 1/n like the rest of it (the unit of its copies is the
+    # light samples and the continuation), or weighted 1/n where roulette does not drop them
     ("ears-first-light-unweighted", _S,
-     "        c_nee = beta * L_nee\n", "        c_nee = L_nee\n", _T),
+     "c_nee = dr.select(n < 1.0, 1.0, w0) * L_nee", "c_nee = L_nee", _T),
+    ("ears-first-light-rouletted", _S,
+     "c_nee = dr.select(n < 1.0, 1.0, w0) * L_nee", "c_nee = w0 * L_nee", _T),
     # a restarting copy of the first hit takes no light samples there (the continuation alone)
     ("ears-restart-without-light", _S,
      "        c += beta * L_nee\n        return",
@@ -196,8 +198,8 @@ MUTANTS = [
      "        return", _T),
     # the replicated first bounce without the first hit's light samples
     ("ears-replicated-first-without-light", _S,
-     "return si_n, beta, eta, depth, alive, c + c0, k + k0, act",
-     "return si_n, beta, eta, depth, alive, c, k + k0, act", _T),
+     'own = (state["own"][0] + c + c0, state["own"][1] + k + k0)',
+     'own = (state["own"][0] + c, state["own"][1] + k + k0)', _T),
     # a deciding part split off whatever its fixed cost against the samples left
     ("ears-part-cost-ignored", _S,
      "if left * per_spp * (1.0 - 1.0 / max(KERNEL_COST, 1.0)) < fixed:",

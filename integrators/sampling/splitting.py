@@ -1,17 +1,24 @@
 r"""Efficiency-aware Russian roulette and splitting (EARS) with real path replication.
 
-**The decision.**  At every vertex x of a path the emission found there is counted once, for
-the lane that reached x.  The rest, the light x reflects, L_r(x), is estimated by n(x)
-independent copies, each weighted 1/n(x): at the first hit a copy is the vertex's light samples
-(:meth:`VertexEstimator.direct`, MIS-weighted) and its continuation (a BSDF sample, its ray,
-the emission it finds, and everything behind it), as in the authors' implementation, so that
-where the light samples carry the noise (direct light) the copies average it; at the deeper
-vertices the light samples are taken once, by the lane that reached the vertex, and a copy is
-the continuation.  n < 1 is Russian roulette (one copy with probability n), n > 1 splitting
-into floor(n) or ceil(n) copies by stochastic rounding (floor(n + u), u uniform), so the
-expected number of copies is n and the estimate is unbiased for *any* n > 0 chosen before the
-rounding (tested with random n in [0.1, 8] at every vertex).  Roulette at the first hit drops
-its light samples with the rest; past it, only what lies behind a vertex.
+**The decision.**  At every vertex x of a path the emission found there and the light samples
+taken there (:meth:`VertexEstimator.direct`, MIS-weighted) are counted once, for the lane that
+reached x.  The rest, the light reflected at x through the BSDF sample, L_r(x), is estimated by
+n(x) independent copies of the continuation (a BSDF sample, its ray, the emission it finds, and
+everything behind it), each weighted 1/n(x).  n < 1 is Russian roulette (one copy with
+probability n), n > 1 splitting into floor(n) or ceil(n) copies by stochastic rounding
+(floor(n + u), u uniform), so the expected number of copies is n and the estimate is unbiased
+for *any* n > 0 chosen before the rounding (tested with random n in [0.1, 8] at every vertex).
+Roulette never drops a vertex's direct light, only what lies behind it.  One exception: where
+the first hit splits (n >= 1), each of its copies takes light samples of its own there, weighted
+1/n like the rest of the copy, as in the authors' implementation and ``nee_path``'s ``split``:
+where the light samples carry the noise (direct light) the copies then average it too.  (Taken
+once, the four copies of ``veach_mis``'s first hits lowered ``nee_path``'s relMSE 1.47x against
+``split=4``'s 3.62x, in the same time: ``benchmarks/results/ears_unit_283a320``.  Dropping the
+light samples with the continuation where n < 1 as well, as the authors do, traced 1.3-1.4x
+the rays per camera sample in the dark scene with a bright light, 10-20 % slower at the same
+error:
+its regions' second moments, the light samples in, allowed less roulette.)  The statistics are
+the continuation's alone, at every vertex.
 
 The efficiency-optimal n (Rath, Grittmann, Herholz, Weier, Slusallek 2022, "EARS:
 Efficiency-Aware Russian Roulette and Splitting"; Vorba & Krivanek 2016, ADRRS): the work
@@ -183,18 +190,18 @@ paths, and in the Cornell box the variance change with the wrong sign (measured 
 that also counted the deeper vertices twice, so no magnitudes are quoted).
 
 **The first hit's copies in the megakernel.**  With ``split_depth`` 1 a lane makes floor(n + u)
-copies of its first hit's light samples and continuation and runs them one after another: when
-a copy's path ends, the lane restarts from the first hit (kept in registers) with the copy
-weight 1/n and takes light samples of its own there, with the BSDF sample drawn with them.  The
-camera ray is shared, as with ``nee_path``'s fixed ``split``, and no lane is written, compacted
-or gathered.  The first hit's record sums its copies' L_r, L_r^2 and cost (their light samples
-in) in registers; the deeper records are the first copy's.  (Before 2026-12-07 a copy was the
-continuation alone, the light samples shared: on ``veach_mis``, 64 spp in one call, four such
-copies lowered ``nee_path``'s relMSE 1.47x, four with their own light samples, ``split=4``,
-3.62x in about the same time: ``benchmarks/results/ears_unit_283a320``.)  The figures in this
-paragraph were measured with the continuation alone.  A SIMD packet runs as long as its
-longest lane, so lanes that draw different numbers of copies idle; the lanes of a packet are
-samples of the same pixel, whose n is about the same.
+copies of its first hit's light samples and continuation (n >= 1; above) and runs them one
+after another: when a copy's path ends, the lane restarts from the first hit (kept in
+registers) with the copy weight 1/n, and spends one iteration of the loop there taking light
+samples of its own (one copy of the light-sample code in the loop: a second one, for the
+restarting lanes, made the copies 1.33-1.46x ``split=4``'s time against 1.18-1.42x), whose
+BSDF sample it continues with.  The camera ray is shared, as with ``nee_path``'s fixed
+``split``, and no lane is written, compacted or gathered.  The first hit's record sums its
+copies' L_r, L_r^2 and cost in registers; the deeper records are the first copy's.  The
+figures in this paragraph were measured with the first hit's light samples shared by its
+copies.  A SIMD packet runs as long as its longest lane, so lanes that draw different numbers
+of copies idle; the lanes of a packet are samples of the same pixel, whose n is about the
+same.
 Side runs, steady state (48 px, 256-spp passes after 8 learning ones, efficiency 1 / (per-pixel
 relative variance x seconds) relative to ``nee_path rr=throughput``; split / roulette only):
 indirect room 1.56/1.40, dark scene with a bright light 1.53/1.74, glossy scene 1.10/1.05,
@@ -1122,10 +1129,7 @@ class Wavefront:
             self._next = (mi.Ray3f(ray), pi)
         valid = si.is_valid()
         alive = valid & (1 < limit)
-        # (the first hit's light samples are taken by each of its copies, in the first bounce)
         smooth = mi.has_flag(si.bsdf().flags(), mi.BSDFFlags.Smooth)
-        self.L += L0
-        self.cost = dr.zeros(mi.Float, n_cam)
         sid = dr.arange(mi.UInt32, n_cam)
         beta = mi.Spectrum(1.0)
         eta = mi.Float(1.0)
@@ -1133,26 +1137,33 @@ class Wavefront:
         u = sampler.next_1d()
         n, classic, cell = ears.factor(si, beta, eta, depth, pixel, sampler, alive,
                                        smooth=smooth)
+        # the first hit's light samples: here, once, where n < 1 (roulette drops the
+        # continuation alone), else in each copy (the first bounce, ``nee``)
+        L_nee, k0, _, _ = self.light(scene, sel, sampler, si, alive & (n < 1.0), smooth)
+        self.L += L0 + L_nee
+        self.cost = dr.zeros(mi.Float, n_cam) + k0
         dr.eval(self.L, self.cost, valid, n, u, cell, classic,
                 si if self._next is None else self._next)
         self.stats["camera_rays"] += n_cam
         recs = []
         self.traced = 0                         # continuation rays traced
         state = self.replicate(dict(si=si, beta=beta, eta=eta, depth=depth, sid=sid,
-                                    pixel=pixel, hist=[], acc=[], classic=classic),
+                                    pixel=pixel, hist=[], acc=[], classic=classic,
+                                    nee=n >= 1.0),
                                n, u, cell, alive, recs,
                                learn)
         bounce = 0
         while state is not None:
             bounce += 1
             sampler.seed(dr.opaque(mi.UInt32, seed_mix(seed, b0, bounce)), state["width"])
-            si, beta, eta, depth, alive, c, k, act = self.vertex(scene, sel, sampler, state,
-                                                                 limit, bounce == 1)
+            si, beta, eta, depth, alive, c, k, act, c0, k0 = self.vertex(scene, sel, sampler,
+                                                                         state, limit)
             hist = state["hist"]
             # what this lane added to its camera sample, and since each of its records was made
             # (flushed to the camera sample and the records when the lane ends or splits: one
-            # scatter per segment of a path, not an atomic add per bounce)
-            own = (state["own"][0] + c, state["own"][1] + k)
+            # scatter per segment of a path, not an atomic add per bounce; the records are the
+            # continuation's, without the first hit's light samples, c0)
+            own = (state["own"][0] + c + c0, state["own"][1] + k + k0)
             lc = luminance(c)
             acc = [(a + lc, b + k) for a, b in state["acc"]]
             u = sampler.next_1d()
@@ -1184,9 +1195,9 @@ class Wavefront:
     @dr.syntax
     def roulette_kernel(self, scene, sel, sampler, ray, pixel, limit, learn: bool):
         """Every path of a batch in one kernel (Mitsuba's megakernel).  At the first hit
-        floor(n + u) copies of its light samples and continuation, each weighted 1/n, run one
-        after another in the lane, each restarting from the first hit with light samples and a
-        BSDF sample of its own (n clamped
+        floor(n + u) copies of the continuation (n >= 1: and of the hit's light samples), each
+        weighted 1/n, run one after another in the lane, each restarting from the first hit
+        with light samples and a BSDF sample of its own (n clamped
         to one in ``classic`` and ``roulette`` passes: roulette only); at the later vertices
         roulette with survival min(n, 1).  The records live in registers: the first hit's as
         sums over its copies (L_r, L_r^2, copies, cost), the deeper ones' for the first copy
@@ -1218,31 +1229,27 @@ class Wavefront:
         # (as wide as the loop: unused, they stay in its state, see record_once)
         zero, one = widen(mi.Float(0.0), alive), widen(mi.Float(1.0), alive)
         Y, S, K, inv_p, Q = zero, mi.Float(zero), mi.Float(zero), one, mi.Float(one)
-        # floor(n + u) copies of the first hit's light samples and continuation, each weighted
-        # 1/n (n < 1: roulette), run one after another in the lane
+        # the first hit's light samples: once where n < 1 (roulette drops the continuation
+        # alone), else in each of its floor(n + u) copies, weighted 1/n like the rest of it
+        # (the others take theirs when they restart)
+        L_nee, cost, pre, smooth = self.light(scene, sel, sampler, si, alive, smooth)
+        w0 = copy_weight(n)
+        c_nee = dr.select(n < 1.0, 1.0, w0) * L_nee
+        L += c_nee
+        if predict:
+            # (the alternative takes them once, after the first hit's decision where n >= 1,
+            # where the pass's survival is one: counted before it, unscaled)
+            c0 = luminance(L - c_nee) + luminance(c_nee) * scale
+            Y, S, K = c0 * c0, mi.Float(c0), mi.Float(cost)
+            inv_p, Q = ears.survivals(beta, eta, depth, pre, dr.minimum(n, 1.0), classic, inv_p,
+                                      Q, alive, raw=raw if versus else None)
+        # floor(n + u) copies of the first hit's continuation, each weighted 1/n (n < 1:
+        # roulette), run one after another in the lane
         copies = mi.UInt32(dr.floor(n + sampler.next_1d()))
         alive &= copies > 0
         left = dr.select(alive, copies - 1, 0)
-        w0 = copy_weight(n)
         beta *= w0
         blum0 = dr.select(alive, luminance(beta), 0.0)
-        # the first copy's light samples (the others take theirs when they restart)
-        L_nee, cost, pre, smooth = self.light(scene, sel, sampler, si, alive, smooth)
-        c_nee = beta * L_nee
-        L += c_nee
-        if predict:
-            # the camera ray's emission, then the decision at the first hit, after which the
-            # light samples count (before it where the vertex keeps the rule: the rule applies
-            # after the BSDF sample, to the continuation alone)
-            c0 = luminance(L - c_nee)
-            Y, S, K = c0 * c0, mi.Float(c0), mi.Float(0.0)
-            lc = luminance(c_nee) * scale
-            Y, S, K = predict_add(Y, S, K, dr.select(classic, lc, 0.0),
-                                  dr.select(classic, cost, 0.0), inv_p, Q, alive)
-            inv_p, Q = ears.survivals(mi.Spectrum(1.0), eta, depth, pre, dr.minimum(n, 1.0),
-                                      classic, inv_p, Q, alive, raw=raw if versus else None)
-            Y, S, K = predict_add(Y, S, K, dr.select(classic, 0.0, lc),
-                                  dr.select(classic, 0.0, cost), inv_p, Q, alive)
         si0, classic0, cell_first = mi.SurfaceInteraction3f(si), mi.Bool(classic), cell
         # record 0 (the first hit's cells): what the current copy added (S0, R0), and the sums
         # over its finished copies of L_r, L_r^2, copies, cost; records of deeper vertices:
@@ -1251,7 +1258,7 @@ class Wavefront:
         # (all as wide as the loop: in a pass without records or copies they stay unchanged in
         # its state, and a narrow one would have it recorded twice, see record_once)
         fz, uz = widen(mi.Float(0.0), alive), widen(mi.UInt32(0), alive)
-        S0, R0 = fz + luminance(c_nee), fz + cost
+        S0, R0 = fz, mi.Float(fz)
         t1, t2, tn, tR = mi.Float(fz), mi.Float(fz), mi.Float(fz), mi.Float(fz)
         recs = [(mi.UInt32(uz), mi.UInt32(uz), mi.Float(fz), mi.Float(fz), mi.Float(fz))
                 for _ in range(LEARN_DEPTH - 1)]
@@ -1286,8 +1293,10 @@ class Wavefront:
             end = active & lnot(alive)
             if dr.hint(learn, mode="scalar"):
                 lc = luminance(c)
-                S0 += lc
-                R0 += k
+                # (the statistics are the continuation's: a restarting copy's light samples at
+                # the first hit left out)
+                S0 += dr.select(stay, 0.0, lc)
+                R0 += dr.select(stay, 0.0, k)
                 d1 = dr.select(first, depth, 0)
                 recs = records_add(recs, d1, lc, k, 1)
                 blum = dr.select(alive, luminance(beta), 0.0)
@@ -1449,23 +1458,24 @@ class Wavefront:
         return (ray, pi, si_n, beta, eta, depth, alive, c, dr.select(act, 1.0, 0.0) + k, nxt,
                 act, smooth)
 
-    def vertex(self, scene, sel, sampler, st, limit, first: bool):
-        """The kernel of one bounce over the live lanes (:meth:`continuation`): the
-        contribution c, the next vertex, and the cost k.  ``first``: the bounce from the first
-        hit, whose copies each take their light samples there too."""
+    def vertex(self, scene, sel, sampler, st, limit):
+        """The kernel of one bounce over the live lanes (:meth:`continuation`): the next
+        vertex, the contribution c, the cost k, and in the bounce from the first hit, where it
+        split (``nee``), each copy's light samples there, c0 and their cost k0."""
         if "si" in st:
             si = st["si"]
         else:
             si = st["pi"].compute_surface_interaction(st["ray"], mi.RayFlags.All, True)
-        pre, c0, k0 = None, 0.0, 0.0
-        if first:
-            L0, k0, pre, _ = self.light(scene, sel, sampler, si, mi.Bool(True))
+        pre, c0, k0 = None, mi.Spectrum(0.0), mi.Float(0.0)
+        if "nee" in st:
+            L0, k0, pre, _ = self.light(scene, sel, sampler, si, mi.Bool(st["nee"]))
             c0 = st["beta"] * L0
+            fresh = lnot(st["nee"])
         ray, pi, si_n, beta, eta, depth, alive, c, k, _, act, _ = self.continuation(
             scene, sel, sampler, si, st["beta"], st["eta"], st["depth"], st["classic"], limit,
-            mi.Bool(True), pre)
+            mi.Bool(True), pre, None if pre is None else fresh)
         self._next = (ray, pi)
-        return si_n, beta, eta, depth, alive, c + c0, k + k0, act
+        return si_n, beta, eta, depth, alive, c, k, act, c0, k0
 
     def replicate(self, st, n, u, cell, alive, recs, record: bool):
         """The next wavefront: each lane with floor(s n + u) copies, each weighted 1/(s n)
@@ -1515,6 +1525,8 @@ class Wavefront:
                    pixel=dr.gather(mi.UInt32, st["pixel"], idx),
                    classic=dr.gather(mi.Bool, st["classic"], idx),
                    hist=[dr.gather(mi.UInt32, hh, idx) for hh in st["hist"]])
+        if "nee" in st:     # (the first hit: whether its copies take its light samples)
+            out["nee"] = dr.gather(mi.Bool, st["nee"], idx)
         # a lane that went on alone keeps its sums; the copies of a split start from zero
         alone = dr.gather(mi.UInt32, counts, idx) == 1
         out["acc"] = [(dr.gather(mi.Float, a, idx, alone), dr.gather(mi.Float, b, idx, alone))
