@@ -193,9 +193,9 @@ that also counted the deeper vertices twice, so no magnitudes are quoted).
 copies of its first hit's light samples and continuation (n >= 1; above) and runs them one
 after another: when a copy's path ends, the lane restarts from the first hit (kept in
 registers) with the copy weight 1/n, and spends one iteration of the loop there taking light
-samples of its own (one copy of the light-sample code in the loop: a second one, for the
-restarting lanes, made the copies 1.33-1.46x ``split=4``'s time against 1.18-1.42x), whose
-BSDF sample it continues with.  The camera ray is shared, as with ``nee_path``'s fixed
+samples of its own (so the loop holds one copy of the light-sample code; a second one, for
+the restarting lanes, was no faster: 1.33-1.46x ``split=4``'s time against 1.18-1.48x in two
+runs of ``benchmarks.ears_unit``), whose BSDF sample it continues with.  The camera ray is shared, as with ``nee_path``'s fixed
 ``split``, and no lane is written, compacted or gathered.  The first hit's record sums its
 copies' L_r, L_r^2 and cost in registers; the deeper records are the first copy's.  The
 figures in this paragraph were measured with the first hit's light samples shared by its
