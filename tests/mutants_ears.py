@@ -10,12 +10,16 @@ MUTANTS = [
     # each copy weighted 1/ceil(n): roulette uncompensated, splits under-weighted
     ("ears-copy-weight-ceil", _S,
      "    return safe_div(1.0, n)\n", "    return safe_div(1.0, dr.ceil(n))\n", _T),
+    # the copies of a split weighted by the rounded-up factor instead of their drawn count
+    ("ears-split-weight-ceil", _S,
+     "copy_weight(n), safe_div(1.0, mi.Float(m)))", "copy_weight(n), safe_div(1.0, dr.ceil(n)))",
+     _T),
     # stochastic rounding biased towards floor(n): fewer copies than n on average
     ("ears-rounding-biased", _S,
      "counts = mi.UInt32(dr.floor(ns + u))", "counts = mi.UInt32(dr.floor(ns + 0.8 * u))", _T),
     # the weight forgets the lane cap's scale s (copies counted with s n, weighted 1/n)
     ("ears-cap-scale-not-in-weight", _S,
-     'beta = dr.gather(mi.Spectrum, st["beta"] * copy_weight(ns), idx)',
+     'beta = dr.gather(mi.Spectrum, st["beta"] * split_weight(ns, counts), idx)',
      'beta = dr.gather(mi.Spectrum, st["beta"] * copy_weight(n), idx)', _T),
     # a copy's camera sample taken from the compressed parent list instead of the lane:
     # contributions land in other pixels
