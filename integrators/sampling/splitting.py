@@ -199,9 +199,9 @@ runs of ``benchmarks.ears_unit``), whose BSDF sample it continues with.  The cam
 shared, as with ``nee_path``'s fixed ``split``, and no lane is written, compacted or
 gathered.  The first hit's record sums its copies' L_r, L_r^2 and cost in registers; the
 deeper records are the first copy's.  The figures in this paragraph were measured with the
-first hit's light samples shared by its copies.  A SIMD packet runs as long as its longest lane, so lanes that draw different numbers
-of copies idle; the lanes of a packet are samples of the same pixel, whose n is about the
-same.
+first hit's light samples shared by its copies.  A SIMD packet runs as long as its longest
+lane, so lanes that draw different numbers of copies idle; the lanes of a packet are samples of
+the same pixel, whose n is about the same.
 Side runs, steady state (48 px, 256-spp passes after 8 learning ones, efficiency 1 / (per-pixel
 relative variance x seconds) relative to ``nee_path rr=throughput``; split / roulette only):
 indirect room 1.56/1.40, dark scene with a bright light 1.53/1.74, glossy scene 1.10/1.05,
