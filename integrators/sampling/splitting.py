@@ -10,14 +10,13 @@ u uniform), each weighted 1/m (:func:`split_weight`), so the estimate is unbiase
 n > 0 chosen before the rounding (tested with random n in [0.1, 8] at every vertex).
 Roulette never drops a vertex's direct light, only what lies behind it.  One exception: where
 the first hit splits (n >= 1), each of its copies takes light samples of its own there, weighted
-1/n like the rest of the copy, as in the authors' implementation and ``nee_path``'s ``split``:
+1/m like the rest of the copy, as in the authors' implementation and ``nee_path``'s ``split``:
 where the light samples carry the noise (direct light) the copies then average it too.  (Taken
 once, the four copies of ``veach_mis``'s first hits lowered ``nee_path``'s relMSE 1.47x against
 ``split=4``'s 3.62x, in the same time: ``benchmarks/results/ears_unit_283a320``.  Dropping the
 light samples with the continuation where n < 1 as well, as the authors do, traced 1.3-1.4x
 the rays per camera sample in the dark scene with a bright light, 10-20 % slower at the same
-error:
-its regions' second moments, the light samples in, allowed less roulette.)  The statistics are
+error: its regions' second moments, the light samples in, allowed less roulette.)  The statistics are
 the continuation's alone, at every vertex.
 
 The efficiency-optimal n (Rath, Grittmann, Herholz, Weier, Slusallek 2022, "EARS:
@@ -192,7 +191,7 @@ that also counted the deeper vertices twice, so no magnitudes are quoted).
 **The first hit's copies in the megakernel.**  With ``split_depth`` 1 a lane makes floor(n + u)
 copies of its first hit's light samples and continuation (n >= 1; above) and runs them one
 after another: when a copy's path ends, the lane restarts from the first hit (kept in
-registers) with the copy weight 1/n, and spends one iteration of the loop there taking light
+registers) with the copy weight 1/m, and spends one iteration of the loop there taking light
 samples of its own (so the loop holds one copy of the light-sample code; a second one, for
 the restarting lanes, was no faster: 1.33-1.46x ``split=4``'s time against 1.18-1.48x in two
 runs of ``benchmarks.ears_unit``), whose BSDF sample it continues with.  The camera ray is
