@@ -16,8 +16,8 @@ once, the four copies of ``veach_mis``'s first hits lowered ``nee_path``'s relMS
 ``split=4``'s 3.62x, in the same time: ``benchmarks/results/ears_unit_283a320``.  Dropping the
 light samples with the continuation where n < 1 as well, as the authors do, traced 1.3-1.4x
 the rays per camera sample in the dark scene with a bright light, 10-20 % slower at the same
-error: its regions' second moments, the light samples in, allowed less roulette.)  The statistics are
-the continuation's alone, at every vertex.
+error: its regions' second moments, the light samples in, allowed less roulette.)  The
+statistics are the continuation's alone, at every vertex.
 
 The efficiency-optimal n (Rath, Grittmann, Herholz, Weier, Slusallek 2022, "EARS:
 Efficiency-Aware Russian Roulette and Splitting"; Vorba & Krivanek 2016, ADRRS): the work
