@@ -257,10 +257,8 @@ def main(argv=None):
         results[name] = run_scene(name, a.res, a.spp, a.repeats, a.ref_spp, a.methods,
                                   single=a.single)
         chart(out / f"{name}.png", name, results[name])
-        write_text(out / "results.json", json.dumps(
-            {"command": command, "date_utc": provenance.now_utc(), "git": provenance.git_state(),
-             "machine": provenance.machine(), "res": a.res, "single": a.single,
-             "results": results}, indent=1))
+        write_text(out / "results.json", json.dumps(provenance.record(
+            command, res=a.res, single=a.single, results=results), indent=1))
         write_text(out / "ears.md", table(results, a.spp, command, a.single))
     print(table(results, a.spp, command, a.single))
 

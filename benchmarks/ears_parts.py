@@ -89,7 +89,7 @@ def table(results: dict, command: str) -> str:
                          f"{fmt(r['parts']['no_rule'])} | {s['rule'] * 1e3:.1f} | "
                          f"{s['no_rule'] * 1e3:.1f} | {s['nee_path'] * 1e3:.1f} | "
                          f"{r['no_rule_over_rule']:.2f}x |")
-    lines += ["", "```", command, "```", ""]
+    lines += ["", *provenance.command_block(command)]
     return "\n".join(lines)
 
 
@@ -109,10 +109,8 @@ def main(argv=None):
     results = {}
     for name in a.scenes:
         results[name] = run_scene(name, a.res, a.spp, a.repeats)
-        write_text(out / "results.json", json.dumps(
-            {"command": command, "date_utc": provenance.now_utc(),
-             "git": provenance.git_state(), "machine": provenance.machine(), "res": a.res,
-             "results": results}, indent=1))
+        write_text(out / "results.json", json.dumps(provenance.record(
+            command, res=a.res, results=results), indent=1))
         write_text(out / "ears_parts.md", table(results, command))
     print(table(results, command))
 

@@ -104,7 +104,7 @@ def table(results: dict, command: str) -> str:
                      f"{r['ears_n4']['relmse_lowered']:.2f}x | {r['split4']['seconds']:.3f} | "
                      f"{r['ears_n4']['seconds']:.3f} | {r['ears_n1']['seconds']:.3f} | "
                      f"{r['nee_path']['seconds']:.3f} |")
-    lines += ["", "```", command, "```", ""]
+    lines += ["", *provenance.command_block(command)]
     return "\n".join(lines)
 
 
@@ -125,10 +125,8 @@ def main(argv=None):
     results = {}
     for name in a.scenes:
         results[name] = run_scene(name, a.res, a.spp, a.repeats, a.ref_spp)
-        write_text(out / "results.json", json.dumps(
-            {"command": command, "date_utc": provenance.now_utc(),
-             "git": provenance.git_state(), "machine": provenance.machine(), "res": a.res,
-             "spp": a.spp, "results": results}, indent=1))
+        write_text(out / "results.json", json.dumps(provenance.record(
+            command, res=a.res, spp=a.spp, results=results), indent=1))
         write_text(out / "ears_unit.md", table(results, command))
     print(table(results, command))
 

@@ -91,6 +91,13 @@ def subprocess_env() -> dict:
     return env
 
 
+def record(cmd: str, **fields) -> dict:
+    """A results file's header: the command, the time, the commit and the machine, then
+    ``fields``."""
+    return {"command": cmd, "date_utc": now_utc(), "git": git_state(), "machine": machine(),
+            **fields}
+
+
 def command_block(cmd: str) -> list:
     """The Markdown lines of a "Command:" section."""
     return ["Command:", "", "```", cmd, "```", ""]
