@@ -179,9 +179,22 @@ MUTANTS = [
     # a plain part within a call with its lanes inactive (its samples black, weighted as
     # rendered)
     ("ears-plain-part-inactive", _S,
-     "L, valid, _ = self.integ.sample(scene, sampler, ray)",
-     "L, valid, _ = self.integ.sample(scene, sampler, ray, None, False)",
+     "self.ears.copies)\n            elif kernel:",
+     "self.ears.copies, False)\n            elif kernel:",
      ["test_ears.py::test_plain_part_within_a_call"]),
+    # the copies' difference not halved (the copies' share of the variance read 4x)
+    ("ears-copy-half-not-halved", "integrators/plugins/nee_path.py",
+     "half = 0.5 * diff", "half = diff", ["test_ears.py::test_copy_trial_splits_the_variance"]),
+    # the variance the copies share taken as the trial's variance less a whole copy's, not its
+    # 1/k share (the copies' gain read high)
+    ("ears-copy-shared-variance", _S,
+     "self.copy_var = (v - v1 / self.copies, v1)", "self.copy_var = (v - v1, v1)",
+     ["test_ears.py::test_copy_trial_splits_the_variance"]),
+    # the plain kernel's copies weighted 1/2 whatever their count
+    ("ears-plain-copies-weight-two", "integrators/plugins/nee_path.py",
+     "weight = dr.opaque(mi.Float, roulette.split_weight(copies))",
+     "weight = dr.opaque(mi.Float, roulette.split_weight(2))",
+     ["test_nee_path.py::test_split_k_at_spp_over_k_matches_split_1"]),
     # the parts of a call that decide the mode all of the first part's size (the split trial
     # as small as the classic part)
     ("ears-parts-not-doubling", _S,

@@ -227,19 +227,22 @@ def test_median_copy_cell():
     assert c[c >= m].sum() >= 0.5 * c.sum() > c[c > m].sum()
 
 
-def test_plain_passes_are_nee_path():
+@pytest.mark.parametrize("copies", [1, 3])
+def test_plain_passes_are_nee_path(copies):
     """Once the learned roulette is found not to pay, the passes are ``nee_path``'s own with the
-    throughput rule: the same image as ``nee_path rr=throughput`` for the same seed (Cornell box,
-    max_depth 8: the rule acts from depth 5 on)."""
+    throughput rule, with the copies of the first hit the copy trial chose: the same image as
+    ``nee_path rr=throughput split=copies`` for the same seed (Cornell box, max_depth 8: the
+    rule acts from depth 5 on)."""
     scene = mi.load_file(str(ROOT / "scenes" / "cornell_box.xml"), res="16")
     it = ears(max_depth=8)
     mi.render(scene, integrator=it, spp=16, seed=0)
-    it.ears.plain = True
+    it.ears.plain, it.ears.copy_trial, it.ears.copies = True, False, copies
     it.ears.mode = it.ears.next_mode()
     img = np.array(mi.render(scene, integrator=it, spp=64, seed=7))
-    assert it.stats["mode"] == "plain"
+    assert it.stats["mode"] == "plain" and it.stats["copies"] == copies
     ref = np.array(mi.render(scene, integrator=mi.load_dict(
-        {"type": "nee_path", "rr": "throughput", "max_depth": 8}), spp=64, seed=7))
+        {"type": "nee_path", "rr": "throughput", "max_depth": 8, "split": copies}), spp=64,
+        seed=7))
     assert np.allclose(img, ref, rtol=1e-5, atol=1e-6)
 
 
@@ -261,11 +264,95 @@ def test_plain_part_within_a_call(monkeypatch, fixed_parts):
         it = ears(max_depth=8)
         ours.append(np.array(mi.render(scene, integrator=it, spp=256, seed=k)))
         parts.append(it.stats["parts"])
-    assert all(p == [("classic", 16), ("roulette", 16), ("plain", 224)] for p in parts), parts
+    # (the plain parts: the copy trial, two copies of the first hit, then the chosen copies)
+    assert all(p == [("classic", 16), ("roulette", 16), ("plain", 32), ("plain", 192)]
+               for p in parts), parts
     ref = batch_images(scene, mi.load_dict({"type": "path", "max_depth": 8}), batches=24,
                        spp=256, seed0=1000)
     r = image_test(np.array(ours, np.float64), ref)
     assert r.passed and r.rel_se <= MAX_REL_SE, r
+
+
+def _trial_pixels(t):
+    """Per pixel of a copy trial's filtered block (EARS.measure_copies): the pixel's variance
+    from its even and odd samples, the copies' share (D^2), and its value."""
+    t = t.reshape(-1, 5).astype(np.float64)
+    w_e, w_o = t[:, 1], t[:, 3]
+    w = w_e + w_o
+    var = (t[:, 0] / w_e - t[:, 2] / w_o) ** 2 * w_e * w_o / w ** 2
+    return var, (t[:, 4] / w) ** 2, (t[:, 0] + t[:, 2]) / w
+
+
+def test_copy_trial_splits_the_variance(monkeypatch):
+    """Where the render goes plain (policy auto), its plain kernel's copies of the first hit
+    are chosen from the copy trial's split of the image's variance into the part the copies
+    average (from the half differences of each camera sample's first two copies) and the rest
+    (``EARS.measure_copies``).  H0: the split is unbiased, so per pixel the two-copy pass's
+    variance plus the copies' share D^2 has the expectation of a one-copy pass's variance
+    (Var_1 = V_0 + V_1, Var_2 = V_0 + V_1 / 2, E[D^2] = V_1 / 2).  With a box filter each is
+    unbiased per pixel and pixels are independent: a z-test on the mean of the 256 pixels'
+    differences, each divided by the pixel's value from an independent pass (+ 0.01), two-sided
+    at ``DEFAULT_ALPHA`` (16 px Cornell box, max_depth 8, 256 spp per pass; normal
+    approximation of a mean of 256).  ``EARS.copy_var`` is checked to be the trial's pixel
+    means.  Negative controls (tests/mutants_ears.py): the copies' half difference not halved;
+    V_0 the trial's variance less a whole copy's instead of half of it."""
+    from scipy import stats as sst
+    from integrators.sampling.learning import relmse_denominator
+    from integrators.testing.stats import DEFAULT_ALPHA, count_check
+    monkeypatch.setattr(splitting, "FIRST_PART", 1.0)     # (each call one part)
+    text = (ROOT / "scenes" / "cornell_box.xml").read_text()
+    assert text.count('<rfilter type="gaussian"/>') == 1
+    scene = mi.load_string(text.replace('<rfilter type="gaussian"/>', '<rfilter type="box"/>'),
+                           res="16")
+    wts = _pixel_weights(scene)
+    it = ears(max_depth=8)
+    mi.render(scene, integrator=it, spp=16, seed=0)       # (classic: the pixels' values)
+    e = it.ears
+    e.plain, e.rule_cost = True, 6.0
+    e.mode = e.next_mode()
+    blocks, measure = [], e.measure_copies
+
+    def keep(spp):
+        blocks.append(np.array(e.trial_block.tensor(), np.float64))
+        measure(spp)
+    monkeypatch.setattr(e, "measure_copies", keep)
+    for copies in (1, splitting.TRIAL_COPIES):      # (the first one the trial's kernel too)
+        e.copy_trial, e.copies = True, copies
+        mi.render(scene, integrator=it, spp=256, seed=copies)
+        assert not e.copy_trial and it.stats["mode"] == "plain"
+    var_one, _, _ = _trial_pixels(blocks[0])
+    var_two, d2, value = _trial_pixels(blocks[1])
+    ip2 = relmse_denominator(value)
+    v1 = 2.0 * np.mean(d2 / ip2)
+    assert np.isclose(e.copy_var[1], v1, rtol=1e-4)
+    assert np.isclose(e.copy_var[0], np.mean(var_two / ip2) - v1 / 2, rtol=1e-4, atol=1e-9)
+    assert e.copies == splitting.copies_for(splitting.CAMERA_COST, 6.0 - splitting.CAMERA_COST,
+                                            *e.copy_var, e.split_max)
+    # (the copies carry a real share here: the first hit's light samples)
+    assert 0.2 < np.mean(d2 * wts) / np.mean(var_one * wts) < 0.9
+    d = (var_one - (var_two + d2)) * wts
+    count_check(DEFAULT_ALPHA)
+    z = d.mean() / (d.std(ddof=1) / np.sqrt(d.size))
+    p = 2 * sst.norm.sf(abs(z))
+    assert p >= DEFAULT_ALPHA, (d.mean(), np.mean(var_one * wts), z)
+
+
+def test_copies_for_maximises_the_predicted_efficiency():
+    """The plain kernel's copies: the k of highest 1 / ((V_0 + V_1 / k)(a + b k)), more than
+    one only where that gains ``COPY_GAIN`` over one copy."""
+    f = splitting.copies_for
+    # (Veach's MIS scene, 96 px, as measured: the first hit's light samples carry the noise;
+    # the rule's cost 3.1 per camera sample)
+    assert f(2.0, 1.1, 0.076, 1.14, 4) == 4
+    assert f(2.0, 1.1, 0.076, 1.14, 2) == 2
+    assert f(2.0, 1.1, 0.076, 1.14, 1) == 1
+    assert f(1.0, 1.0, 1.0, 0.0, 4) == 1          # (nothing for the copies to average)
+    assert f(0.1, 0.9, 1.0, 0.3, 4) == 1          # (the copies cost most of the time)
+    assert f(0.7, 0.3, 0.0, 1.0, 8) == 8          # (all of the variance the copies')
+    # k = 2 gains (1 + 1) (0.7 + 0.3) / ((1 + 0.5) (0.7 + 0.6)) = 1.026 < COPY_GAIN
+    assert f(0.7, 0.3, 1.0, 1.0, 2) == 1
+    assert f(0.0, 1.0, 1.0, 1.0, 4) == 1 and f(1.0, 0.0, 1.0, 1.0, 4) == 1
+    assert f(1.0, 1.0, 0.0, 0.0, 4) == 1
 
 
 def _pixel_weights(scene):

@@ -33,7 +33,11 @@ The lecture's estimator with each degree of freedom of its last slide as a param
   roulette pass also estimates, on its own paths, the throughput rule's variance and cost;
   where the learned roulette is not worth 1.3x the plain kernel's time per unit of work, the
   render goes on with ``nee_path``'s own kernel and the throughput rule (``stats['mode']`` =
-  ``plain``, rays not counted).  By default (``split_policy=auto``) a split pass follows a
+  ``plain``, rays not counted); under ``auto`` its first plain pass takes two copies of the
+  first hit per camera sample and measures how much of the image's variance they average, and
+  the plain passes after it take the copies (``split``, up to ``split_max``) of highest
+  predicted efficiency where that is 1.3x one copy's (``stats['copies']``).  By default
+  (``split_policy=auto``) a split pass follows a
   roulette pass that gained enough, and estimates on its first copies what the roulette would
   have given; the render splits while splitting pays, else goes on with roulette only, or
   plain.  While it learns, a render call is rendered in parts of doubling size (1/16, 1/16,
@@ -54,7 +58,7 @@ import time
 import drjit as dr
 import mitsuba as mi
 
-from ..common import depth_limit, is_jit, record_once
+from ..common import depth_limit, is_jit, luminance, record_once, widen
 from ..params import MAX_COUNT, Param, ParameterError
 from ..registry import plugin
 from ..sampling import light_selection, mis, roulette, splitting
@@ -159,12 +163,13 @@ class NEEPath(IntegratorTemplate):
             self.ears.film(film_shape(film), sensor_view(sensor))
         if self.forced_factor is not None:      # (tests: factors given, no mode to learn)
             self.ears.mode = self.ears.next_mode()
-        if self.ears.mode == "plain":       # (Mitsuba's kernel: no rays counted)
+        if self.ears.mode == "plain" and not self.ears.copy_trial:  # (Mitsuba's kernel: no
+            # rays counted)
             # (Mitsuba's render calls this one again, once: a pass counted at the outer call)
             outer = not self._plain_call
             if outer:
                 self.ears.passes += 1
-                self.stats = dict(mode="plain", max_lanes=0)
+                self.stats = dict(mode="plain", max_lanes=0, copies=self.ears.copies)
             self._plain_call = True
             try:
                 return self.base_render(scene, sensor, seed, spp, develop, evaluate)
@@ -190,6 +195,8 @@ class NEEPath(IntegratorTemplate):
             t0 = time.perf_counter()
             if self.ears.learning and mode != "plain":
                 self.ears.learn(part, seconds[0] if timed else 0.0)
+            elif mode == "plain" and self.ears.copy_trial:
+                self.ears.measure_copies(part)
             if clock and seconds[1] is not None:
                 self.ears.part_cost = (seconds[1] + time.perf_counter() - t0, seconds[2] / part)
             done, k = done + part, k + 1
@@ -200,6 +207,8 @@ class NEEPath(IntegratorTemplate):
                     stats[key] = stats.get(key, 0) + v
             stats.setdefault("parts", []).append((mode, part))
         self.stats = dict(stats, mode=mode)
+        if mode == "plain":
+            self.stats["copies"] = self.ears.copies
         film.put_block(block)
         return film.develop() if develop else block.tensor()
 
@@ -207,7 +216,8 @@ class NEEPath(IntegratorTemplate):
         """For the run record (rr=adaptive): the passes, the mode they now run in and the
         learned roulette's efficiency against the throughput rule as a roulette pass estimated
         it (what sent the render to the plain kernel, or kept it learning), and splitting's
-        against the roulette as a split pass estimated it (``auto``: what kept or ended it)."""
+        against the roulette as a split pass estimated it (``auto``: what kept or ended it);
+        in the plain mode the first hit's copies per camera sample."""
         if not self.adaptive or self.ears is None:
             return {}
         e = self.ears
@@ -216,29 +226,49 @@ class NEEPath(IntegratorTemplate):
             notes["estimated_gain_over_throughput_rule"] = round(float(e.gain), 3)
         if e.split_gain is not None:
             notes["estimated_gain_of_splitting_over_roulette"] = round(float(e.split_gain), 3)
+        if e.mode == "plain":       # (the copies of the first hit the copy trial chose)
+            notes["plain_copies"] = e.copies
         return notes
+
+    def sample(self, scene, sampler, ray, medium=None, active=True):
+        """One camera sample (rr=adaptive renders through :meth:`render` instead, except in its
+        ``plain`` passes, which come here: the throughput rule, with the copies of the first
+        hit its EARS state chose)."""
+        copies = self.ears.copies if self.adaptive and self.ears is not None else self.split
+        L, valid, _ = self.sample_copies(scene, sampler, ray, copies, active)
+        return L, valid, []
 
     @record_once
     @dr.syntax
-    def sample(self, scene, sampler, ray, medium=None, active=True):
-        """One camera sample (rr=adaptive renders through :meth:`render` instead, except in its
-        ``plain`` passes, which come here: the throughput rule)."""
+    def sample_copies(self, scene, sampler, ray, copies: int, active=True):
+        """One camera sample with ``copies`` copies of the first hit's reflected light (its
+        light samples and continuation), each weighted 1/copies: (L, valid, half), half the
+        difference of the first two copies' luminance where copies >= 2 (whose variance given
+        the camera sample is that of the mean of two copies), else None."""
         active = mi.Bool(active)
         ray = mi.Ray3f(ray)
         sel = self.prepare(scene)
         si, L = self.camera_hit(scene, ray, active)
         valid = si.is_valid()
         active = active & valid & (1 < depth_limit(self.max_depth))
-        if dr.hint(self.split == 1, mode="scalar"):
+        half = None
+        if dr.hint(copies == 1, mode="scalar"):
             L += self.reflected(scene, sampler, sel, ray, si, active)
         else:
             acc = mi.Spectrum(0.0)
+            diff = widen(mi.Float(0.0), ray.o.x)
             k = mi.UInt32(0)
-            while dr.hint(k < self.split, label="nee_path split", exclude=[ray, si, active]):
-                acc += self.reflected(scene, sampler, sel, ray, si, active)
+            # (the count and weight opaque: one kernel for every count)
+            count = dr.opaque(mi.UInt32, copies)
+            while dr.hint(k < count, label="nee_path split", exclude=[ray, si, active]):
+                r = self.reflected(scene, sampler, sel, ray, si, active)
+                acc += r
+                y = luminance(r)
+                diff += dr.select(k == 0, y, dr.select(k == 1, -y, 0.0))
                 k += 1
-            L += acc * roulette.split_weight(self.split)
-        return L, valid, []
+            L += acc * dr.opaque(mi.Float, roulette.split_weight(copies))
+            half = 0.5 * diff
+        return L, valid, half
 
     def reflected(self, scene, sampler, sel, ray, si, active):
         """One path's estimate of the light reflected at the first hit ``si`` (its emission

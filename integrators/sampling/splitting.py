@@ -188,6 +188,31 @@ its subtree's), it read the rule's cost several times too far from the learned o
 paths, and in the Cornell box the variance change with the wrong sign (measured in a draft
 that also counted the deeper vertices twice, so no magnitudes are quoted).
 
+**The plain kernel's copies of the first hit (policy ``auto``).**  Where the render goes plain,
+its noise may be the first hit's light samples' (direct light: ``nee_path split=4`` lowers
+``veach_mis``'s relMSE 3.9x for 2.8x the time), which no roulette touches and the statistics,
+the continuation's, do not see.  So its first plain pass (or part) is a copy trial: it takes
+``TRIAL_COPIES`` (2) copies of the first hit (its light samples and continuation, ``nee_path``'s
+``split``) per camera sample and measures, in the image as the relMSE sees it (splatted with the
+film's filter, :meth:`EARS.measure_copies`), each pixel's variance (from the difference of its
+even and odd samples' filtered means) and the share of it the copies average (the filtered mean
+of half the difference of each camera sample's first two copies, whose variance given the
+camera samples is that share): one copy's share V_1 and the rest V_0, relative to the filtered
+pixels.  The plain kernel then takes the k in [1, ``split_max``] of highest predicted
+efficiency 1 / ((V_0 + V_1 / k)(a + b k)) (:func:`copies_for`; more than one only where it
+gains ``COPY_GAIN``), in the cost model's units: a = ``CAMERA_COST``, b the rest of the
+throughput rule's cost per camera sample as the last roulette pass estimated it.  The count
+and the weight 1/k are opaque in the kernel (one kernel for every k).  Measured before
+settling on this: per-pixel box sums instead of the filtered image read ``small_light``'s
+copies' share of the variance 3-9x too high (Mitsuba's Gaussian filter pools neighbouring
+pixels' samples, which averages the copies' noise, independent between samples, more than the
+variation over a pixel footprint, whose dark pixels next to the light hold its light): 2
+copies lower the box sums' variance 1.7x there and the image's 1.2x; the filtered pixels
+predict ``cornell_box``'s 4 copies' relMSE 3.2-3.5x lower (measured 3.42x) and
+``small_light``'s 1.28-1.55x (1.32x).  The kernels' running times of a one-copy and a
+two-copy part instead of the cost model varied too much between repeats to choose from (the
+small parts' launches, and the trial's per-pixel sums, are in those times).
+
 **The first hit's copies in the megakernel.**  With ``split_depth`` 1 a lane makes floor(n + u)
 copies of its first hit's light samples and continuation (n >= 1; above) and runs them one
 after another: when a copy's path ends, the lane restarts from the first hit (kept in
@@ -428,6 +453,18 @@ SPLIT_COST = 1.05
 #: high often enough to split ``specular_box`` and ``sharp_glossy`` at 32 spp (0.52x and
 #: 0.17x with the split kernel's compilation in the time)
 SPLIT_TRY = 1.15
+#: policy ``auto``: once the render goes plain, its first plain pass (or part) takes this many
+#: copies of the first hit per camera sample (``nee_path``'s ``split``), and measures how much
+#: of a camera sample's variance they average (:meth:`EARS.measure_copies`), so that the plain
+#: kernel's copies can be chosen: where the first hit's light samples carry the noise (direct
+#: light), 2-4 copies pay
+TRIAL_COPIES = 2
+#: the predicted efficiency gain over one copy from which the plain kernel takes more (the
+#: cost model reads a copy's cost relative to the camera sample's up to 2.8x low on directly
+#: lit scenes, e.g. ``veach_mis``, so the predicted gains run high: 1.7-1.8 there against
+#: ``split=4``'s measured 1.3-1.5; ``small_light`` 0.99-1.16 and ``sharp_glossy`` 1.09-1.2,
+#: measured 0.6 and 1.0-1.1; ``cornell_box`` 1.03-1.14, measured 1.03-1.14)
+COPY_GAIN = 1.3
 #: atomic scatter-adds (the default may replicate the target per thread, with its size baked
 #: into the kernel: a recompilation whenever a wavefront's width changes)
 DIRECT = dr.ReduceMode.Direct
@@ -510,6 +547,21 @@ class EARS:
         #: set once the prediction found the learned roulette not worth its kernel: the passes
         #: then run ``plain`` (the integrator's own kernel, the throughput rule, no records)
         self.plain = False
+        #: copies of the first hit's light samples and continuation per camera sample in the
+        #: plain kernel (``nee_path``'s ``split``): 1, or under policy ``auto`` the count of
+        #: highest predicted efficiency after the copy trial (:meth:`measure_copies`)
+        self.copies = 1
+        #: policy ``auto``, plain: the copy trial (a plain part of ``TRIAL_COPIES`` copies
+        #: whose pixels' variance is measured) still to run; what it measured: (the variance
+        #: the copies share, one copy's share), relative, the trial's pixels' mean; and the
+        #: throughput rule's cost per camera sample, as the last roulette pass estimated it
+        #: (:meth:`compare`)
+        self.copy_trial = False
+        self.copy_var = None
+        self.rule_cost = None
+        #: the copy trial's pass: its pixels' even and odd samples and the copies' half
+        #: differences, filtered (``Wavefront.render``, :meth:`measure_copies`)
+        self.trial_block = None
         #: each fine cell's coarse cell (the last record written there): the parent its moments
         #: are shrunk towards
         self.parent = dr.zeros(mi.UInt32, self.grid.size)
@@ -602,7 +654,9 @@ class EARS:
         decay by ``DECAY`` after every pass, whatever its size, so parts in every call would
         shorten what the regions remember (the indirect room, 24 px, calls of 32 spp in parts
         while learning: 13 learned passes in three calls, not settled)."""
-        if not self.recording or self.mode == "plain":
+        if self.mode == "plain":        # (the copy trial a part of its own: its two copies
+            return bool(self.copy_trial)    # cost 2x the plain kernel's time per sample)
+        if not self.recording:
             return False
         if self.mode == "classic":
             return True
@@ -804,10 +858,13 @@ class EARS:
             best = max(self.gain, self.gain * ratio / SPLIT_COST)
         else:
             self.gain = best = ratio
+            self.rule_cost = c_c
             if self.split_pending:      # (the fallback waits for the split pass's estimate)
                 return
         if best < KERNEL_COST:
             self.plain = True
+            if self.policy == "auto" and self.split_max >= 2 and self.rule_cost is not None:
+                self.copy_trial, self.copies = True, TRIAL_COPIES
 
     def next_mode(self) -> str:
         """The mode of the next pass (see ``MODES``).  Nothing learned: ``classic``.  Policy
@@ -837,6 +894,54 @@ class EARS:
             if m not in self.measured:
                 return m
         return max(LEARNED_MODES, key=lambda m: self.measured[m])
+
+    def measure_copies(self, spp: int):
+        """After the copy trial's plain pass (or part) of ``spp`` samples per pixel
+        (:attr:`copy_trial`): the variance of its pixels, and the share of it that the copies
+        would average, in the image as the relMSE sees it (the film's filter pools
+        neighbouring pixels' samples, which averages the copies' noise, independent between
+        samples, more than the shared part, which varies over the pixel footprint: in
+        ``small_light``, with Mitsuba's Gaussian filter, 2 copies lower the box-filtered
+        pixels' variance 1.7x and the image's 1.2x); and from them the plain kernel's copies
+        from then on (:meth:`best_copies`).  A pixel's variance from the difference of its
+        even and odd samples' filtered means F_e, F_o (each the filter's sum over its own
+        samples, of weights w_e, w_o): (F_e - F_o)^2 w_e w_o / (w_e + w_o)^2; the copies' share
+        E[D^2], D the filtered mean of the half differences of the first two copies, whose
+        variance given the camera samples is the image's.  Both relative (divided by I_p^2 +
+        0.01), averaged over the pixels.  ``copy_var`` = (the rest, V_0; one copy's share,
+        V_1): with k copies the pass's variance would be V_0 + V_1 / k."""
+        s1 = host(self.pass_s1)
+        self.pix_s1 += s1
+        self.pix_n += spp
+        block = self.trial_block
+        self.trial_block = None
+        if self.copies >= 2 and spp >= 2:
+            t = host(block.tensor()).reshape(-1, 5).astype(np.float64)
+            w_e, w_o = t[:, 1], t[:, 3]
+            ok = (w_e > 0) & (w_o > 0)
+            w = np.where(ok, w_e + w_o, 1.0)
+            f_e, f_o = t[:, 0] / np.where(ok, w_e, 1.0), t[:, 2] / np.where(ok, w_o, 1.0)
+            var = (f_e - f_o) ** 2 * w_e * w_o / w ** 2
+            d2 = (t[:, 4] / w) ** 2
+            # (relative to the filtered pixels, as the relMSE's reference is: next to a bright
+            # pixel, a dark one's filtered value holds its neighbour's light and its variance)
+            ip2 = relmse_denominator((t[:, 0] + t[:, 2]) / w)
+            if ok.any():
+                v = float(np.mean((var / ip2)[ok]))
+                v_copies = float(np.mean((d2 / ip2)[ok]))
+                v1 = 2.0 * v_copies     # (D: the mean of two copies)
+                self.copy_var = (v - v1 / self.copies, v1)
+        self.copy_trial = False
+        self.copies = self.best_copies()
+
+    def best_copies(self) -> int:
+        """The plain kernel's copies per camera sample after the copy trial (:func:`copies_for`
+        with its variances, and the costs of the cost model: ``CAMERA_COST`` the camera
+        sample's, the rest of the throughput rule's cost the copy's; 1 before the trial)."""
+        if self.copy_var is None or self.rule_cost is None:
+            return 1
+        return copies_for(CAMERA_COST, self.rule_cost - CAMERA_COST, *self.copy_var,
+                          self.split_max)
 
     @property
     def split_pending(self) -> bool:
@@ -881,6 +986,23 @@ class EARS:
         f_m = np.where(ok, RR_MARGIN * np.sqrt(m2 * k / c), -1.0)
         f_v = np.where(ok, np.sqrt(v * k / c), -1.0)
         return f_m, f_v, ok
+
+
+def copies_for(a: float, b: float, v0: float, v1: float, k_max: int) -> int:
+    """The copies k of the first hit per camera sample of highest predicted efficiency, 1 /
+    ((V_0 + V_1 / k) (a + b k)), 1 <= k <= ``k_max``: V_1 (``v1``) a copy's relative variance
+    per camera sample (the spread of the copies of one camera sample), V_0 (``v0``) the rest
+    (the camera ray's footprint and first hit, which the copies share); ``a`` the cost of a
+    camera sample before its copies, ``b`` a copy's.  k >= 2 only where it gains ``COPY_GAIN``
+    over one copy."""
+    v0, v1 = max(v0, 0.0), max(v1, 0.0)
+    if not (a > 0 and b > 0 and v0 + v1 > 0):
+        return 1
+
+    def efficiency(k):
+        return 1.0 / ((v0 + v1 / k) * (a + b * k))
+    best = max(range(1, max(int(k_max), 1) + 1), key=efficiency)
+    return best if efficiency(best) >= COPY_GAIN * efficiency(1) else 1
 
 
 def median_copy_cell(copies) -> float:
@@ -1034,8 +1156,9 @@ class Wavefront:
     def render(self, scene, sensor, seed: int, spp: int, block=None):
         """Render ``spp`` samples per pixel into ``block`` (default: a new one of the film's);
         returns the block.  In the ``plain`` mode (a part of a call after the learned roulette
-        was found not to pay, :meth:`EARS.part`) the integrator's own kernel (``sample``: the
-        throughput rule, no records, its rays not counted)."""
+        was found not to pay, :meth:`EARS.part`) the integrator's own kernel
+        (``sample_copies``: the throughput rule, ``EARS.copies`` copies of the first hit, no
+        records, its rays not counted; in the copy trial its pixels' sums kept)."""
         from mitsuba.ad.integrators.common import ADIntegrator
         film = sensor.film()
         h, w = film_shape(film)
@@ -1043,6 +1166,12 @@ class Wavefront:
         total = w * h * spp
         kernel = self.replicated == 0
         plain = self.ears.mode == "plain"
+        # (a plain pass of the copy trial: what it measures splatted with the film's filter,
+        # EARS.measure_copies; the sample border left out)
+        trial = plain and bool(self.ears.copy_trial)
+        if trial:
+            self.ears.trial_block = mi.ImageBlock(film.crop_size(), film.crop_offset(), 5,
+                                                  film.rfilter())
         demand = min(max(self.ears.lane_demand, 2.0), 2.0 * self.ears.split_max + 1.0)
         batch = self.max_lanes if kernel else max(1, int(self.max_lanes / (1.1 * demand)))
         self._demand = 0.0
@@ -1056,7 +1185,8 @@ class Wavefront:
             idx = dr.arange(mi.UInt32, n) + dr.opaque(mi.UInt32, b0)
             ray, weight, pos, pixel = self.camera_rays(sensor, sampler, idx, spp)
             if plain:       # (the integrator's own kernel, the throughput rule)
-                L, valid, _ = self.integ.sample(scene, sampler, ray)
+                L, valid, half = self.integ.sample_copies(scene, sampler, ray,
+                                                          self.ears.copies)
             elif kernel:
                 L, valid = self.kernel_batch(scene, sampler, ray, pixel)
             else:
@@ -1065,18 +1195,25 @@ class Wavefront:
                                          alpha=dr.select(valid, mi.Float(1), mi.Float(0)),
                                          aovs=[], wavelengths=ray.wavelengths)
             self.stats["batches"] += 1
-            if plain:       # (nothing learned from it, its rays not counted)
+            if plain and not trial:     # (nothing learned from it, its rays not counted)
                 dr.eval(block.tensor())
                 continue
             # (the pixel in the units of the paths' throughputs, whose ratio to it is w: the
             # radiance along the camera ray, without the sensor's weight, which in spectral
             # variants is the wavelength sample's importance weight, tens of times the radiance)
             lum = luminance(L)
+            if trial:       # (the pixel's even and odd samples apart, and the copies' half)
+                even = dr.select(((idx - pixel * spp) & 1) == 0, mi.Float(1.0), 0.0)
+                self.ears.trial_block.put(pos, [lum * even, even, lum * (1.0 - even),
+                                                1.0 - even, mi.Float(0.0) if half is None
+                                                else half])
             dr.scatter_reduce(dr.ReduceOp.Add, self.ears.pass_s1, lum, pixel, mode=DIRECT)
             dr.scatter_reduce(dr.ReduceOp.Add, self.ears.pass_s2, lum * lum, pixel, mode=DIRECT)
             dr.eval(block.tensor(), self.ears.pass_s1, self.ears.pass_s2, self._totals,
-                    self._pred, self.ears.pass_s2c)
-            self.stats["camera_samples"] += n
+                    self._pred, self.ears.pass_s2c,
+                    self.ears.trial_block.tensor() if trial else None)
+            if not plain:
+                self.stats["camera_samples"] += n
         self.kernel_totals()
         self.ears.lane_demand = self._demand
         return block
