@@ -258,6 +258,7 @@ def test_plain_part_within_a_call(monkeypatch, fixed_parts):
     from integrators.testing.stats import batch_images, image_test
     from integrators.testing.unbiased import MAX_REL_SE
     monkeypatch.setattr(splitting, "KERNEL_COST", float("inf"))
+    monkeypatch.setattr(splitting, "COPY_GAIN", 1.0)    # (a copy trial whatever the costs)
     scene = mi.load_file(str(ROOT / "scenes" / "cornell_box.xml"), res="16")
     ours, parts = [], []
     for k in range(24):
@@ -353,6 +354,9 @@ def test_copies_for_maximises_the_predicted_efficiency():
     assert f(0.7, 0.3, 1.0, 1.0, 2) == 1
     assert f(0.0, 1.0, 1.0, 1.0, 4) == 1 and f(1.0, 0.0, 1.0, 1.0, 4) == 1
     assert f(1.0, 1.0, 0.0, 0.0, 4) == 1
+    # (the trial's gate, all of the variance the copies': a camera sample cheap against a copy,
+    # as in the lamp in a glass shade, never gains COPY_GAIN; Veach's MIS scene may)
+    assert f(2.0, 6.9, 0.0, 1.0, 4) == 1 and f(2.0, 1.1, 0.0, 1.0, 4) == 4
 
 
 def _pixel_weights(scene):

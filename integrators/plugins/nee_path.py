@@ -199,6 +199,7 @@ class NEEPath(IntegratorTemplate):
                 self.ears.measure_copies(part)
             if clock and seconds[1] is not None:
                 self.ears.part_cost = (seconds[1] + time.perf_counter() - t0, seconds[2] / part)
+                self.ears.last_part_cost = self.ears.part_cost
             done, k = done + part, k + 1
             for key, v in wave.stats.items():     # (largest or summed over the parts)
                 if key in ("max_lanes", "bounces"):

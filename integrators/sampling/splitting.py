@@ -594,6 +594,8 @@ class EARS:
         #: kernels' running seconds per sample per pixel, i.e. per spp over the film); None
         #: before the call's first part
         self.part_cost = None
+        #: the last part's of any call (a call that starts with the copy trial: :meth:`part`)
+        self.last_part_cost = None
 
     # ---- per-pixel state -----------------------------------------------------------------
     def film(self, shape, view=None):
@@ -641,6 +643,13 @@ class EARS:
             if left * per_spp * (1.0 - 1.0 / max(KERNEL_COST, 1.0)) < fixed:
                 return left
         first = max(2, int(round(spp * FIRST_PART)))
+        if k == 0 and self.mode == "plain" and WEIGH_PART_COST and self.last_part_cost:
+            # (a call that starts with the copy trial: the rest of it a part of its own only
+            # where the copies chosen may save that part's fixed cost on it, at most half of
+            # two copies' running time)
+            fixed, per_spp = self.last_part_cost
+            if (left - first) * per_spp * 0.5 < fixed:
+                return left
         size = min(first if k == 0 else done, left)
         return left if left - size < 2 else size
 
@@ -863,7 +872,10 @@ class EARS:
                 return
         if best < KERNEL_COST:
             self.plain = True
-            if self.policy == "auto" and self.split_max >= 2 and self.rule_cost is not None:
+            # (no trial where copies could not gain COPY_GAIN even if they held all of the
+            # variance: a camera sample's cost small against its copy's)
+            if self.policy == "auto" and self.rule_cost is not None and copies_for(
+                    CAMERA_COST, self.rule_cost - CAMERA_COST, 0.0, 1.0, self.split_max) > 1:
                 self.copy_trial, self.copies = True, TRIAL_COPIES
 
     def next_mode(self) -> str:
