@@ -192,8 +192,8 @@ MUTANTS = [
      ["test_ears.py::test_copy_trial_splits_the_variance"]),
     # the plain kernel's copies weighted 1/2 whatever their count
     ("ears-plain-copies-weight-two", "integrators/plugins/nee_path.py",
-     "weight = dr.opaque(mi.Float, roulette.split_weight(copies))",
-     "weight = dr.opaque(mi.Float, roulette.split_weight(2))",
+     "L += acc * dr.opaque(mi.Float, roulette.split_weight(copies))",
+     "L += acc * dr.opaque(mi.Float, roulette.split_weight(2))",
      ["test_nee_path.py::test_split_k_at_spp_over_k_matches_split_1"]),
     # the parts of a call that decide the mode all of the first part's size (the split trial
     # as small as the classic part)

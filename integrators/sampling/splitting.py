@@ -201,8 +201,15 @@ camera samples is that share): one copy's share V_1 and the rest V_0, relative t
 pixels.  The plain kernel then takes the k in [1, ``split_max``] of highest predicted
 efficiency 1 / ((V_0 + V_1 / k)(a + b k)) (:func:`copies_for`; more than one only where it
 gains ``COPY_GAIN``), in the cost model's units: a = ``CAMERA_COST``, b the rest of the
-throughput rule's cost per camera sample as the last roulette pass estimated it.  The count
-and the weight 1/k are opaque in the kernel (one kernel for every k).  Measured before
+throughput rule's cost per camera sample as the last roulette pass estimated it.  No trial
+where the copies could not gain ``COPY_GAIN`` even holding all of the variance (V_0 = 0: a
+camera sample cheap against its copy, the lamp in a glass shade); a call that starts with the
+trial renders it in one part unless the rest of the call is worth a part's fixed cost (at 32
+spp, ``sharp_glossy``'s 4-spp call took 18 ms as two parts against ``nee_path``'s 7 ms).
+The count and the weight 1/k are opaque in the kernel (one kernel for every k).  Measured:
+``veach_mis`` 1.08-1.20x ``nee_path``'s efficiency with 4 copies chosen (0.83-0.94x with one),
+the other plain-fallback scenes 0.75-1.05x, the trial's part 5-10 % of their 0.06-0.3 s
+renders at 96 px (``benchmarks/results/ears_copy_gate``).  Measured before
 settling on this: per-pixel box sums instead of the filtered image read ``small_light``'s
 copies' share of the variance 3-9x too high (Mitsuba's Gaussian filter pools neighbouring
 pixels' samples, which averages the copies' noise, independent between samples, more than the
