@@ -261,7 +261,7 @@ class NEEPath(IntegratorTemplate):
             k = mi.UInt32(0)
             # (the count and weight opaque: one kernel for every count)
             count = dr.opaque(mi.UInt32, copies)
-            while dr.hint(k < count, label="nee_path split", exclude=[ray, si, active]):
+            while dr.hint(k < count, label="nee_path split", exclude=[ray, si, active, count]):
                 r = self.reflected(scene, sampler, sel, ray, si, active)
                 acc += r
                 y = luminance(r)
