@@ -179,22 +179,45 @@ MUTANTS = [
     # a plain part within a call with its lanes inactive (its samples black, weighted as
     # rendered)
     ("ears-plain-part-inactive", _S,
-     "self.ears.copies)\n            elif kernel:",
-     "self.ears.copies, False)\n            elif kernel:",
+     "sample_copies(scene, sampler, ray, copies)",
+     "sample_copies(scene, sampler, ray, copies, False)",
      ["test_ears.py::test_plain_part_within_a_call"]),
     # the copies' difference not halved (the copies' share of the variance read 4x)
     ("ears-copy-half-not-halved", "integrators/plugins/nee_path.py",
-     "half = 0.5 * diff", "half = diff", ["test_ears.py::test_copy_trial_splits_the_variance"]),
+     "half = dr.select(count >= 2, 0.5 * diff, 0.0)", "half = dr.select(count >= 2, diff, 0.0)",
+     ["test_ears.py::test_copy_trial_splits_the_variance"]),
     # the variance the copies share taken as the trial's variance less a whole copy's, not its
     # 1/k share (the copies' gain read high)
     ("ears-copy-shared-variance", _S,
-     "self.copy_var = (v - v1 / self.copies, v1)", "self.copy_var = (v - v1, v1)",
+     "self.copy_var = (v - v1 / self.trial_copies, v1)", "self.copy_var = (v - v1, v1)",
      ["test_ears.py::test_copy_trial_splits_the_variance"]),
     # the plain kernel's copies weighted 1/2 whatever their count
     ("ears-plain-copies-weight-two", "integrators/plugins/nee_path.py",
-     "L += acc * dr.opaque(mi.Float, roulette.split_weight(copies))",
-     "L += acc * dr.opaque(mi.Float, roulette.split_weight(2))",
+     "weight = dr.opaque(mi.Float, roulette.split_weight(copies))",
+     "weight = dr.opaque(mi.Float, roulette.split_weight(2))",
      ["test_nee_path.py::test_split_k_at_spp_over_k_matches_split_1"]),
+    # the copy trial's lanes of two copies weighted as one (its image too bright)
+    ("ears-trial-copies-unweighted", "integrators/plugins/nee_path.py",
+     "weight = roulette.split_weight(mi.Float(count))", "weight = mi.Float(1.0)",
+     ["test_ears.py::test_plain_part_within_a_call"]),
+    # every lane of the copy trial's pass in its block, the one-copy lanes too
+    ("ears-trial-block-every-lane", _S,
+     "on = dr.select(in_trial, mi.Float(1.0), 0.0)", "on = mi.Float(1.0)",
+     ["test_ears.py::test_copy_trial_takes_the_first_samples_of_every_pixel"]),
+    # the trial's samples the first n_trial lanes of the pass instead of every pixel's first
+    ("ears-trial-layout-pixel-major", _S,
+     "pix = dr.select(in_trial, j % P, r // R)", "pix = dr.select(in_trial, j // R, r // R)",
+     ["test_ears.py::test_copy_trial_takes_the_first_samples_of_every_pixel"]),
+    # the classic pass's bound on the roulette's gain taken whatever the depth (where the
+    # throughput rule ends paths, a roulette may lower the variance)
+    ("ears-bound-any-depth", _S,
+     "self.policy in (\"never\", \"auto\") and 0 <= self.max_depth <= self.rr_depth",
+     "self.policy in (\"never\", \"auto\")",
+     ["test_ears.py::test_classic_pass_bounds_the_roulette_gain"]),
+    # the bound's first cost without the first hit's light samples (the bound read high)
+    ("ears-bound-first-light-left-out", _S,
+     "cost_first = mi.Float(cost)", "cost_first = mi.Float(cost) * 0.0",
+     ["test_ears.py::test_classic_pass_bounds_the_roulette_gain"]),
     # the parts of a call that decide the mode all of the first part's size (the split trial
     # as small as the classic part)
     ("ears-parts-not-doubling", _S,

@@ -253,7 +253,7 @@ def test_plain_part_within_a_call(monkeypatch, fixed_parts):
     Mitsuba's ``path`` (Welch t per 4x4 block and channel, Sidak, at ``DEFAULT_ALPHA``;
     Cornell box, 16 px, max_depth 8, 24 renders of 256 spp each side).  Each render a fresh
     integrator, so each is rendered classic, roulette and plain (``KERNEL_COST`` infinite:
-    every roulette part goes plain).  Negative control (tests/mutants_ears.py): the plain
+    every roulette part goes plain), the plain part the copy trial.  Negative control (tests/mutants_ears.py): the plain
     part's lanes inactive (its samples black)."""
     from integrators.testing.stats import batch_images, image_test
     from integrators.testing.unbiased import MAX_REL_SE
@@ -265,9 +265,9 @@ def test_plain_part_within_a_call(monkeypatch, fixed_parts):
         it = ears(max_depth=8)
         ours.append(np.array(mi.render(scene, integrator=it, spp=256, seed=k)))
         parts.append(it.stats["parts"])
-    # (the plain parts: the copy trial, two copies of the first hit, then the chosen copies)
-    assert all(p == [("classic", 16), ("roulette", 16), ("plain", 32), ("plain", 192)]
-               for p in parts), parts
+    # (the plain part the copy trial: its first 28 samples of every pixel two copies of the
+    # first hit, the others one)
+    assert all(p == [("classic", 16), ("roulette", 16), ("plain", 224)] for p in parts), parts
     ref = batch_images(scene, mi.load_dict({"type": "path", "max_depth": 8}), batches=24,
                        spp=256, seed0=1000)
     r = image_test(np.array(ours, np.float64), ref)
@@ -293,14 +293,15 @@ def test_copy_trial_splits_the_variance(monkeypatch):
     (Var_1 = V_0 + V_1, Var_2 = V_0 + V_1 / 2, E[D^2] = V_1 / 2).  With a box filter each is
     unbiased per pixel and pixels are independent: a z-test on the mean of the 256 pixels'
     differences, each divided by the pixel's value from an independent pass (+ 0.01), two-sided
-    at ``DEFAULT_ALPHA`` (16 px Cornell box, max_depth 8, 256 spp per pass; normal
-    approximation of a mean of 256).  ``EARS.copy_var`` is checked to be the trial's pixel
+    at ``DEFAULT_ALPHA`` (16 px Cornell box, max_depth 8, 256 spp per pass, every sample a
+    trial sample; normal approximation of a mean of 256).  ``EARS.copy_var`` is checked to be the trial's pixel
     means.  Negative controls (tests/mutants_ears.py): the copies' half difference not halved;
     V_0 the trial's variance less a whole copy's instead of half of it."""
     from scipy import stats as sst
     from integrators.sampling.learning import relmse_denominator
     from integrators.testing.stats import DEFAULT_ALPHA, count_check
     monkeypatch.setattr(splitting, "FIRST_PART", 1.0)     # (each call one part)
+    monkeypatch.setattr(splitting, "TRIAL_SHARE", 1.0)    # (every sample a trial sample)
     text = (ROOT / "scenes" / "cornell_box.xml").read_text()
     assert text.count('<rfilter type="gaussian"/>') == 1
     scene = mi.load_string(text.replace('<rfilter type="gaussian"/>', '<rfilter type="box"/>'),
@@ -318,7 +319,7 @@ def test_copy_trial_splits_the_variance(monkeypatch):
         measure(spp)
     monkeypatch.setattr(e, "measure_copies", keep)
     for copies in (1, splitting.TRIAL_COPIES):      # (the first one the trial's kernel too)
-        e.copy_trial, e.copies = True, copies
+        e.copy_trial, e.trial_copies = True, copies
         mi.render(scene, integrator=it, spp=256, seed=copies)
         assert not e.copy_trial and it.stats["mode"] == "plain"
     var_one, _, _ = _trial_pixels(blocks[0])
@@ -336,6 +337,36 @@ def test_copy_trial_splits_the_variance(monkeypatch):
     z = d.mean() / (d.std(ddof=1) / np.sqrt(d.size))
     p = 2 * sst.norm.sf(abs(z))
     assert p >= DEFAULT_ALPHA, (d.mean(), np.mean(var_one * wts), z)
+
+
+def test_copy_trial_takes_the_first_samples_of_every_pixel():
+    """The copy trial's samples (``TRIAL_SHARE`` of its pass, the first of every pixel, laid
+    out sample-major: ``Wavefront.trial_layout``): with a box filter each pixel's trial block
+    holds exactly its own trial samples, half even and half odd, and every (pixel, sample)
+    is rendered once."""
+    import drjit as dr
+    text = (ROOT / "scenes" / "cornell_box.xml").read_text()
+    scene = mi.load_string(text.replace('<rfilter type="gaussian"/>', '<rfilter type="box"/>'),
+                           res="16")
+    for spp, n_trial in ((32, 4), (2, 2), (5, 2), (64, 8)):
+        it = ears(max_depth=8)
+        mi.render(scene, integrator=it, spp=2, seed=0)      # (the pixels' values)
+        e = it.ears
+        e.plain, e.rule_cost = True, 6.0
+        e.mode, e.copy_trial = e.next_mode(), True
+        assert e.trial_samples(spp) == n_trial
+        blocks, measure = [], e.measure_copies
+        e.measure_copies = lambda s: (blocks.append(np.array(e.trial_block.tensor())),
+                                      measure(s))
+        mi.render(scene, integrator=it, spp=spp, seed=1)
+        t = blocks[0].reshape(-1, 5)
+        assert np.allclose(t[:, 1], n_trial / 2) and np.allclose(t[:, 3], n_trial / 2)
+        idx, on = splitting.Wavefront.trial_layout(dr.arange(mi.UInt32, 256 * spp), 256, spp,
+                                                   n_trial)
+        idx, on = np.array(idx), np.array(on)
+        assert np.array_equal(np.sort(idx), np.arange(256 * spp))
+        assert np.array_equal(np.sort(idx[on]), np.sort(
+            (np.arange(256)[:, None] * spp + np.arange(n_trial)).ravel()))
 
 
 def test_copies_for_maximises_the_predicted_efficiency():
@@ -540,6 +571,36 @@ def test_parts_weigh_their_fixed_cost(monkeypatch):
     assert it.stats["parts"] == [("classic", 2), ("roulette", 30)], it.stats
     fixed, per_spp = it.ears.part_cost
     assert fixed > 0.0 and per_spp > 0.0
+
+
+def test_classic_pass_bounds_the_roulette_gain(monkeypatch, fixed_parts):
+    """Where the throughput rule ends no path (max_depth <= rr_depth) a roulette only adds
+    variance, so the learned roulette gains at most the cost it saves: the classic pass's cost
+    over its cost had every path ended after the first hit's light samples
+    (``EARS.bound_gain``).  Below ``KERNEL_COST`` the render goes plain without a roulette
+    pass (``KERNEL_COST`` 10 here: every bound is below it); at max_depth 2 the bound's first
+    cost is the camera rays' and the first hit's shadow rays' (none later); at max_depth 8,
+    or under policy ``always``, no bound.  Negative controls (tests/mutants_ears.py): the
+    bound taken whatever the depth; the first hit's light samples left out of its cost."""
+    scene = mi.load_file(str(ROOT / "scenes" / "cornell_box.xml"), res="16")
+    monkeypatch.setattr(splitting, "KERNEL_COST", 10.0)
+    it = ears(max_depth=2)
+    mi.render(scene, integrator=it, spp=2, seed=0)
+    e, st = it.ears, it.stats
+    assert st["shadow_rays"] > 0
+    assert np.isclose(e.pass_cost_first, splitting.CAMERA_COST * st["camera_rays"]
+                      + splitting.SHADOW_COST * st["shadow_rays"], rtol=1e-5)
+    assert e.mode == "plain" and e.gain is None and 1.0 < e.gain_bound < 10.0
+    assert np.isclose(e.gain_bound, e.cost / (e.pass_cost_first / st["camera_rays"]))
+    assert it.run_notes()["gain_bound"] == round(e.gain_bound, 3)
+    for depth, policy, parts in ((4, "auto", [("classic", 2), ("plain", 30)]),
+                                 (4, "never", [("classic", 2), ("plain", 30)]),
+                                 (8, "auto", [("classic", 2), ("roulette", 2), ("plain", 28)]),
+                                 (4, "always", [("classic", 2), ("split", 30)])):
+        it = ears(max_depth=depth, split_policy=policy)
+        mi.render(scene, integrator=it, spp=32, seed=1)
+        assert it.stats["parts"] == parts, (depth, policy, it.stats["parts"])
+        assert (it.ears.gain_bound is None) == (parts[1][0] != "plain" or depth > 5)
 
 
 def test_auto_policy_decisions(monkeypatch):

@@ -143,7 +143,7 @@ class NEEPath(IntegratorTemplate):
     def scene_warnings(self, scene):
         if self.adaptive:    # a new scene: learn from scratch
             self.ears = splitting.EARS(scene, self.rr_min, self.split_max, self.rr_depth,
-                                       self.split_depth, self.split_policy)
+                                       self.split_depth, self.split_policy, self.max_depth)
         return []
 
     def render(self, scene, sensor=0, seed=0, spp=0, develop=True, evaluate=True):
@@ -163,8 +163,8 @@ class NEEPath(IntegratorTemplate):
             self.ears.film(film_shape(film), sensor_view(sensor))
         if self.forced_factor is not None:      # (tests: factors given, no mode to learn)
             self.ears.mode = self.ears.next_mode()
-        if self.ears.mode == "plain" and not self.ears.copy_trial:  # (Mitsuba's kernel: no
-            # rays counted)
+        # (the plain mode: Mitsuba's kernel, no rays counted; the copy trial needs 2 spp)
+        if self.ears.mode == "plain" and not (self.ears.copy_trial and spp >= 2):
             # (Mitsuba's render calls this one again, once: a pass counted at the outer call)
             outer = not self._plain_call
             if outer:
@@ -199,7 +199,6 @@ class NEEPath(IntegratorTemplate):
                 self.ears.measure_copies(part)
             if clock and seconds[1] is not None:
                 self.ears.part_cost = (seconds[1] + time.perf_counter() - t0, seconds[2] / part)
-                self.ears.last_part_cost = self.ears.part_cost
             done, k = done + part, k + 1
             for key, v in wave.stats.items():     # (largest or summed over the parts)
                 if key in ("max_lanes", "bounces"):
@@ -225,6 +224,8 @@ class NEEPath(IntegratorTemplate):
         notes = {"rr": "adaptive", "passes": e.passes, "mode": e.mode, "settled": e.settled}
         if e.gain is not None:
             notes["estimated_gain_over_throughput_rule"] = round(float(e.gain), 3)
+        if e.gain_bound is not None:    # (a classic pass's bound on it, EARS.bound_gain)
+            notes["gain_bound"] = round(float(e.gain_bound), 3)
         if e.split_gain is not None:
             notes["estimated_gain_of_splitting_over_roulette"] = round(float(e.split_gain), 3)
         if e.mode == "plain":       # (the copies of the first hit the copy trial chose)
@@ -241,11 +242,12 @@ class NEEPath(IntegratorTemplate):
 
     @record_once
     @dr.syntax
-    def sample_copies(self, scene, sampler, ray, copies: int, active=True):
+    def sample_copies(self, scene, sampler, ray, copies, active=True):
         """One camera sample with ``copies`` copies of the first hit's reflected light (its
         light samples and continuation), each weighted 1/copies: (L, valid, half), half the
         difference of the first two copies' luminance where copies >= 2 (whose variance given
-        the camera sample is that of the mean of two copies), else None."""
+        the camera sample is that of the mean of two copies; 0 on lanes of one copy), else
+        None.  ``copies``: a count, or one per lane (``UInt32``: the copy trial's lanes)."""
         active = mi.Bool(active)
         ray = mi.Ray3f(ray)
         sel = self.prepare(scene)
@@ -253,22 +255,28 @@ class NEEPath(IntegratorTemplate):
         valid = si.is_valid()
         active = active & valid & (1 < depth_limit(self.max_depth))
         half = None
-        if dr.hint(copies == 1, mode="scalar"):
+        single = isinstance(copies, int) and copies == 1
+        if dr.hint(single, mode="scalar"):
             L += self.reflected(scene, sampler, sel, ray, si, active)
         else:
             acc = mi.Spectrum(0.0)
             diff = widen(mi.Float(0.0), ray.o.x)
             k = mi.UInt32(0)
             # (the count and weight opaque: one kernel for every count)
-            count = dr.opaque(mi.UInt32, copies)
+            if dr.hint(isinstance(copies, int), mode="scalar"):
+                count = dr.opaque(mi.UInt32, copies)
+                weight = dr.opaque(mi.Float, roulette.split_weight(copies))
+            else:
+                count = mi.UInt32(copies)
+                weight = roulette.split_weight(mi.Float(count))
             while dr.hint(k < count, label="nee_path split", exclude=[ray, si, active, count]):
                 r = self.reflected(scene, sampler, sel, ray, si, active)
                 acc += r
                 y = luminance(r)
                 diff += dr.select(k == 0, y, dr.select(k == 1, -y, 0.0))
                 k += 1
-            L += acc * dr.opaque(mi.Float, roulette.split_weight(copies))
-            half = 0.5 * diff
+            L += acc * weight
+            half = dr.select(count >= 2, 0.5 * diff, 0.0)
         return L, valid, half
 
     def reflected(self, scene, sampler, sel, ray, si, active):

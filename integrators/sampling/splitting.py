@@ -466,6 +466,12 @@ SPLIT_TRY = 1.15
 #: kernel's copies can be chosen: where the first hit's light samples carry the noise (direct
 #: light), 2-4 copies pay
 TRIAL_COPIES = 2
+#: the share of the copy trial's call whose samples take ``TRIAL_COPIES`` copies (the first
+#: ones of every pixel, at least two, an even count: :meth:`EARS.trial_samples`); the others
+#: take one.  A trial's cost then does not grow with its call (a whole call of two copies was
+#: 2x ``nee_path``'s time on the Cornell box; at 512 spp in 32-spp calls, ``many_lights``'s
+#: trial call was 123 ms against 84)
+TRIAL_SHARE = 1 / 8
 #: the predicted efficiency gain over one copy from which the plain kernel takes more (the
 #: cost model reads a copy's cost relative to the camera sample's up to 2.8x low on directly
 #: lit scenes, e.g. ``veach_mis``, so the predicted gains run high: 1.7-1.8 there against
@@ -534,13 +540,17 @@ class EARS:
     replaces the learned n at every vertex (tests: random or maximal factors)."""
 
     def __init__(self, scene, rr_min: float, split_max: int, rr_depth: int,
-                 split_depth: int = 1, policy: str = "never"):
+                 split_depth: int = 1, policy: str = "never", max_depth: int = -1):
         # a fine and a coarse grid (roulette: the larger factor of the two cells; splitting: the
         # fine cell's where it has enough copies, else the coarse one's); statistics: sum L_r^2,
         # sum L_r, copies, sum cost
         self.grid = RegionGrid(scene, stats=4, resolution=FINE)
         self.coarse = RegionGrid(scene, stats=4, resolution=COARSE, size=1 << 12)
         self.rr_min, self.split_max, self.rr_depth = float(rr_min), int(split_max), int(rr_depth)
+        #: the paths' longest (-1: unlimited): where it is at most ``rr_depth`` the throughput
+        #: rule ends no path, and a classic pass bounds the learned roulette's gain
+        #: (:meth:`bound_gain`)
+        self.max_depth = int(max_depth)
         self.f_var = mi.Float(np.full(self.grid.size, -1.0, np.float32))
         self.f_var_coarse = mi.Float(np.full(self.coarse.size, -1.0, np.float32))
         #: a roulette pass's estimate of the throughput rule's cost (``Wavefront.kernel_batch``)
@@ -548,6 +558,9 @@ class EARS:
         #: the learned roulette's efficiency relative to the throughput rule's, as estimated
         #: from the last roulette pass (:meth:`compare`)
         self.gain = None
+        #: the bound on ``gain`` that a classic pass measured where the throughput rule ends no
+        #: path (:meth:`bound_gain`); None where it measured none
+        self.gain_bound = None
         #: splitting's efficiency relative to the learned roulette's, as estimated from the
         #: last learning split pass (policy ``auto``, :meth:`compare`)
         self.split_gain = None
@@ -558,12 +571,13 @@ class EARS:
         #: plain kernel (``nee_path``'s ``split``): 1, or under policy ``auto`` the count of
         #: highest predicted efficiency after the copy trial (:meth:`measure_copies`)
         self.copies = 1
-        #: policy ``auto``, plain: the copy trial (a plain part of ``TRIAL_COPIES`` copies
-        #: whose pixels' variance is measured) still to run; what it measured: (the variance
-        #: the copies share, one copy's share), relative, the trial's pixels' mean; and the
-        #: throughput rule's cost per camera sample, as the last roulette pass estimated it
-        #: (:meth:`compare`)
+        #: policy ``auto``, plain: the copy trial (a plain pass whose first samples of every
+        #: pixel take ``trial_copies`` copies, their variance measured) still to run; what it
+        #: measured: (the variance the copies share, one copy's share), relative, the trial's
+        #: pixels' mean; and the throughput rule's cost per camera sample, as the last
+        #: roulette pass (or the classic pass, :meth:`bound_gain`) estimated it
         self.copy_trial = False
+        self.trial_copies = TRIAL_COPIES
         self.copy_var = None
         self.rule_cost = None
         #: the copy trial's pass: its pixels' even and odd samples and the copies' half
@@ -601,8 +615,6 @@ class EARS:
         #: kernels' running seconds per sample per pixel, i.e. per spp over the film); None
         #: before the call's first part
         self.part_cost = None
-        #: the last part's of any call (a call that starts with the copy trial: :meth:`part`)
-        self.last_part_cost = None
 
     # ---- per-pixel state -----------------------------------------------------------------
     def film(self, shape, view=None):
@@ -626,6 +638,9 @@ class EARS:
         self.pass_s1 = dr.zeros(mi.Float, self.shape[0] * self.shape[1])
         self.pass_s2 = dr.zeros(mi.Float, self.shape[0] * self.shape[1])
         self.pass_cost = 0.0
+        #: the pass's cost had every path ended at its first hit after the hit's light samples
+        #: (:meth:`bound_gain`; the megakernel's passes)
+        self.pass_cost_first = 0.0
         self.pass_s2c = dr.zeros(mi.Float, self.shape[0] * self.shape[1])
         self.pass_cost_c = 0.0
 
@@ -650,13 +665,6 @@ class EARS:
             if left * per_spp * (1.0 - 1.0 / max(KERNEL_COST, 1.0)) < fixed:
                 return left
         first = max(2, int(round(spp * FIRST_PART)))
-        if k == 0 and self.mode == "plain" and WEIGH_PART_COST and self.last_part_cost:
-            # (a call that starts with the copy trial: the rest of it a part of its own only
-            # where the copies chosen may save that part's fixed cost on it, at most half of
-            # two copies' running time)
-            fixed, per_spp = self.last_part_cost
-            if (left - first) * per_spp * 0.5 < fixed:
-                return left
         size = min(first if k == 0 else done, left)
         return left if left - size < 2 else size
 
@@ -670,8 +678,8 @@ class EARS:
         decay by ``DECAY`` after every pass, whatever its size, so parts in every call would
         shorten what the regions remember (the indirect room, 24 px, calls of 32 spp in parts
         while learning: 13 learned passes in three calls, not settled)."""
-        if self.mode == "plain":        # (the copy trial a part of its own: its two copies
-            return bool(self.copy_trial)    # cost 2x the plain kernel's time per sample)
+        if self.mode == "plain":        # (the copy trial: a few samples of the call)
+            return False
         if not self.recording:
             return False
         if self.mode == "classic":
@@ -680,6 +688,14 @@ class EARS:
             return any(m not in self.measured for m in LEARNED_MODES)
         return (self.mode == "roulette" and self.gain is None and self.policy != "always") \
             or (self.mode == "split" and self.split_gain is None and self.policy == "auto")
+
+    @property
+    def bounding(self) -> bool:
+        """Whether the next pass measures the bound on the learned roulette's gain
+        (:meth:`bound_gain`): a classic pass that learns, of the policies that go plain
+        (``never``, ``auto``), where the throughput rule ends no path."""
+        return self.mode == "classic" and self.recording and \
+            self.policy in ("never", "auto") and 0 <= self.max_depth <= self.rr_depth
 
     @property
     def recording(self) -> bool:
@@ -840,6 +856,8 @@ class EARS:
                 return float(np.mean((second / spp - mean ** 2) * n_all / (n_all - 1) / ip2))
             self.compare(rel_var(s2), cost, rel_var(host(self.pass_s2c)),
                          self.pass_cost_c / max(s1.size * spp, 1))
+        if self.bounding and self.pass_cost_first > 0:
+            self.bound_gain(cost, self.pass_cost_first / max(s1.size * spp, 1))
         # each mode's last pass, its efficiency measured against the current pixel means (the
         # same denominators for every mode: a pass measured against the noisier means of an
         # early pass would read less variance)
@@ -878,12 +896,39 @@ class EARS:
             if self.split_pending:      # (the fallback waits for the split pass's estimate)
                 return
         if best < KERNEL_COST:
-            self.plain = True
-            # (no trial where copies could not gain COPY_GAIN even if they held all of the
-            # variance: a camera sample's cost small against its copy's)
-            if self.policy == "auto" and self.rule_cost is not None and copies_for(
-                    CAMERA_COST, self.rule_cost - CAMERA_COST, 0.0, 1.0, self.split_max) > 1:
-                self.copy_trial, self.copies = True, TRIAL_COPIES
+            self.go_plain()
+
+    def bound_gain(self, c: float, c_first: float):
+        """After a classic pass (:attr:`bounding`: the throughput rule ends no path), an upper
+        bound on the learned roulette's gain over the rule (:meth:`compare`): any roulette
+        only adds variance there (E[X^2 / q] >= E[X^2]), so the gain is at most the saving in
+        cost, ``c`` / ``c_first``, ``c`` the pass's (the rule's) cost per camera sample and
+        ``c_first`` its cost had every path ended at its first hit after the hit's light
+        samples.  Below ``KERNEL_COST`` no roulette pass is run to estimate the gain, and the
+        render goes plain (``sharp_glossy``, max_depth 4, 96 px: bound 1.18, the roulette
+        pass estimated 1.000; Veach's MIS scene, ``small_light``, ``many_lights``: bounds
+        1.31-1.34, estimated 1.000-1.03).  (Policy ``auto``'s split trial, where the roulette
+        gains ``SPLIT_TRY`` or more, is not run either: the first hit's splitting is then the
+        plain kernel's copies, chosen by the copy trial.  A tighter bound from the
+        continuations' second moments is not to be had: where A = v - sum e_t^2 is negative,
+        as in ``small_light``, (A + sum e_t^2 / q_t)(B + sum q_t c_t) has no Cauchy-Schwarz
+        bound, and continuations that add nothing are ended at no cost in variance.)"""
+        if not (c > 0 and c_first > 0):
+            return
+        self.gain_bound = c / c_first
+        if self.gain_bound < KERNEL_COST:
+            self.rule_cost = c
+            self.go_plain()
+
+    def go_plain(self):
+        """The learned modes found not to pay for their kernel: the rest of the render runs
+        ``plain``.  Policy ``auto``: its first plain pass the copy trial, except where copies
+        could not gain ``COPY_GAIN`` even if they held all of the variance (a camera sample's
+        cost small against its copy's)."""
+        self.plain = True
+        if self.policy == "auto" and self.rule_cost is not None and copies_for(
+                CAMERA_COST, self.rule_cost - CAMERA_COST, 0.0, 1.0, self.split_max) > 1:
+            self.copy_trial = True
 
     def next_mode(self) -> str:
         """The mode of the next pass (see ``MODES``).  Nothing learned: ``classic``.  Policy
@@ -914,10 +959,16 @@ class EARS:
                 return m
         return max(LEARNED_MODES, key=lambda m: self.measured[m])
 
+    def trial_samples(self, spp: int) -> int:
+        """The copy trial's samples per pixel in a pass of ``spp`` (at least 2): the share
+        ``TRIAL_SHARE`` of it, at least two, an even count."""
+        return min(spp, max(2, 2 * int(round(spp * TRIAL_SHARE / 2))))
+
     def measure_copies(self, spp: int):
-        """After the copy trial's plain pass (or part) of ``spp`` samples per pixel
-        (:attr:`copy_trial`): the variance of its pixels, and the share of it that the copies
-        would average, in the image as the relMSE sees it (the film's filter pools
+        """After the copy trial's plain pass of ``spp`` samples per pixel (:attr:`copy_trial`;
+        the first :meth:`trial_samples` of every pixel took ``trial_copies`` copies, and only
+        they are in ``trial_block``): the variance of their pixels, and the share of it that
+        the copies would average, in the image as the relMSE sees it (the film's filter pools
         neighbouring pixels' samples, which averages the copies' noise, independent between
         samples, more than the shared part, which varies over the pixel footprint: in
         ``small_light``, with Mitsuba's Gaussian filter, 2 copies lower the box-filtered
@@ -934,7 +985,7 @@ class EARS:
         self.pix_n += spp
         block = self.trial_block
         self.trial_block = None
-        if self.copies >= 2 and spp >= 2:
+        if self.trial_copies >= 2 and spp >= 2:
             t = host(block.tensor()).reshape(-1, 5).astype(np.float64)
             w_e, w_o = t[:, 1], t[:, 3]
             ok = (w_e > 0) & (w_o > 0)
@@ -949,7 +1000,7 @@ class EARS:
                 v = float(np.mean((var / ip2)[ok]))
                 v_copies = float(np.mean((d2 / ip2)[ok]))
                 v1 = 2.0 * v_copies     # (D: the mean of two copies)
-                self.copy_var = (v - v1 / self.copies, v1)
+                self.copy_var = (v - v1 / self.trial_copies, v1)
         self.copy_trial = False
         self.copies = self.best_copies()
 
@@ -1185,12 +1236,13 @@ class Wavefront:
         total = w * h * spp
         kernel = self.replicated == 0
         plain = self.ears.mode == "plain"
-        # (a plain pass of the copy trial: what it measures splatted with the film's filter,
-        # EARS.measure_copies; the sample border left out)
-        trial = plain and bool(self.ears.copy_trial)
+        # (a plain pass of the copy trial: what its trial samples measure splatted with the
+        # film's filter, EARS.measure_copies; the sample border left out)
+        trial = plain and bool(self.ears.copy_trial) and spp >= 2
         if trial:
             self.ears.trial_block = mi.ImageBlock(film.crop_size(), film.crop_offset(), 5,
                                                   film.rfilter())
+            n_trial = self.ears.trial_samples(spp)
         demand = min(max(self.ears.lane_demand, 2.0), 2.0 * self.ears.split_max + 1.0)
         batch = self.max_lanes if kernel else max(1, int(self.max_lanes / (1.1 * demand)))
         self._demand = 0.0
@@ -1202,10 +1254,14 @@ class Wavefront:
             sampler.seed(dr.opaque(mi.UInt32, seed_mix(seed, b0, 0xCA)), n)
             # (the offset opaque: a literal would compile the kernel again for every batch)
             idx = dr.arange(mi.UInt32, n) + dr.opaque(mi.UInt32, b0)
+            if trial:
+                idx, in_trial = self.trial_layout(idx, w * h, spp, n_trial)
             ray, weight, pos, pixel = self.camera_rays(sensor, sampler, idx, spp)
             if plain:       # (the integrator's own kernel, the throughput rule)
-                L, valid, half = self.integ.sample_copies(scene, sampler, ray,
-                                                          self.ears.copies)
+                copies = self.ears.copies
+                if trial:
+                    copies = dr.select(in_trial, self.ears.trial_copies, mi.UInt32(1))
+                L, valid, half = self.integ.sample_copies(scene, sampler, ray, copies)
             elif kernel:
                 L, valid = self.kernel_batch(scene, sampler, ray, pixel)
             else:
@@ -1221,11 +1277,12 @@ class Wavefront:
             # radiance along the camera ray, without the sensor's weight, which in spectral
             # variants is the wavelength sample's importance weight, tens of times the radiance)
             lum = luminance(L)
-            if trial:       # (the pixel's even and odd samples apart, and the copies' half)
-                even = dr.select(((idx - pixel * spp) & 1) == 0, mi.Float(1.0), 0.0)
-                self.ears.trial_block.put(pos, [lum * even, even, lum * (1.0 - even),
-                                                1.0 - even, mi.Float(0.0) if half is None
-                                                else half])
+            if trial:       # (the pixel's even and odd trial samples apart, the copies' half)
+                on = dr.select(in_trial, mi.Float(1.0), 0.0)
+                even = dr.select(((idx - pixel * spp) & 1) == 0, on, 0.0)
+                odd = on - even
+                self.ears.trial_block.put(pos, [lum * even, even, lum * odd, odd,
+                                                mi.Float(0.0) if half is None else half * on])
             dr.scatter_reduce(dr.ReduceOp.Add, self.ears.pass_s1, lum, pixel, mode=DIRECT)
             dr.scatter_reduce(dr.ReduceOp.Add, self.ears.pass_s2, lum * lum, pixel, mode=DIRECT)
             dr.eval(block.tensor(), self.ears.pass_s1, self.ears.pass_s2, self._totals,
@@ -1237,13 +1294,29 @@ class Wavefront:
         self.ears.lane_demand = self._demand
         return block
 
+    @staticmethod
+    def trial_layout(j, npix: int, spp: int, n_trial: int):
+        """The copy trial's lanes ``j`` (:meth:`EARS.trial_samples`): the first ``n_trial``
+        samples of every pixel, sample-major (lane j < n_trial npix: sample j // npix of pixel
+        j % npix), then the rest of each pixel's, pixel-major: a SIMD packet of neighbouring
+        lanes takes one count of copies, and waits for no other.  Returns (the sample index as
+        :meth:`camera_rays` takes it, whether the lane is a trial sample)."""
+        head = dr.opaque(mi.UInt32, n_trial * npix)
+        P = dr.opaque(mi.UInt32, npix)
+        R = dr.opaque(mi.UInt32, max(spp - n_trial, 1))
+        in_trial = j < head
+        r = dr.select(in_trial, 0, j - head)
+        pix = dr.select(in_trial, j % P, r // R)
+        s = dr.select(in_trial, j // P, dr.opaque(mi.UInt32, n_trial) + r % R)
+        return pix * dr.opaque(mi.UInt32, spp) + s, in_trial
+
     def kernel_batch(self, scene, sampler, ray, pixel):
         """Every path of one batch in the megakernel (:meth:`roulette_kernel`): (L, valid)."""
         integ, ears = self.integ, self.ears
         sel = integ.prepare(scene)
         n_cam = dr.width(ray)
         learn = ears.recording
-        L, valid, cost, traced, pred = self.roulette_kernel(
+        L, valid, cost, traced, pred, cost_first = self.roulette_kernel(
             scene, sel, sampler, ray, pixel, depth_limit(integ.max_depth), learn)
         if pred is not None:    # (the throughput rule's second moment and cost, estimated)
             dr.scatter_reduce(dr.ReduceOp.Add, ears.pass_s2c, pred[0], pixel, mode=DIRECT)
@@ -1255,12 +1328,15 @@ class Wavefront:
         # thread), read once the pass is done (:meth:`kernel_totals`): no reduction kernel and
         # no host synchronisation per batch; the caller's splat goes with the loop too
         if self._totals is None:
-            self._totals = (dr.zeros(mi.Float, 1), dr.zeros(mi.UInt32, 1))
+            self._totals = (dr.zeros(mi.Float, 1), dr.zeros(mi.UInt32, 1),
+                            dr.zeros(mi.Float, 1))
         zero = mi.UInt32(0)
         dr.scatter_reduce(dr.ReduceOp.Add, self._totals[0], cost, zero, mode=FLUSH)
         dr.scatter_reduce(dr.ReduceOp.Add, self._totals[1], traced, zero, mode=FLUSH)
+        dr.scatter_reduce(dr.ReduceOp.Add, self._totals[2], cost_first, zero, mode=FLUSH)
         self.stats["camera_rays"] += n_cam
         ears.pass_cost += CAMERA_COST * n_cam
+        ears.pass_cost_first += CAMERA_COST * n_cam
         self._demand = max(self._demand, 1.0)
         return L, valid
 
@@ -1269,6 +1345,7 @@ class Wavefront:
         if self._totals is None:
             return
         work, rays = float(self._totals[0][0]), int(self._totals[1][0])
+        self.ears.pass_cost_first += float(self._totals[2][0])
         self._totals = None
         if self._pred is not None:
             self.ears.pass_cost_c += float(self._pred[0])
@@ -1400,6 +1477,7 @@ class Wavefront:
         # alone), else in each of its m = floor(n + u) copies, weighted 1/m like the rest of
         # it (the others take theirs when they restart)
         L_nee, cost, pre, smooth = self.light(scene, sel, sampler, si, alive, smooth)
+        cost_first = mi.Float(cost)
         copies = mi.UInt32(dr.floor(n + sampler.next_1d()))
         w0 = split_weight(n, copies)
         if versus:      # (the roulette does not apply the copies' weight where n >= 1)
@@ -1498,7 +1576,7 @@ class Wavefront:
         pred = None
         if predict:
             pred = (Y, K)
-        return L, valid, cost, traced, pred
+        return L, valid, cost, traced, pred, cost_first
 
     @record_once
     @dr.syntax
