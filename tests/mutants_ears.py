@@ -189,8 +189,14 @@ MUTANTS = [
     # the variance the copies share taken as the trial's variance less a whole copy's, not its
     # 1/k share (the copies' gain read high)
     ("ears-copy-shared-variance", _S,
-     "self.copy_var = (v - v1 / self.trial_copies, v1)", "self.copy_var = (v - v1, v1)",
+     "self.copy_var = (float(x.sum()) / n - v1 / self.trial_copies, v1)",
+     "self.copy_var = (float(x.sum()) / n - v1, v1)",
      ["test_ears.py::test_copy_trial_splits_the_variance"]),
+    # the same in the choice of copies: k copies' variance predicted from the trial's less a
+    # whole copy's share
+    ("ears-copies-shared-variance", _S,
+     "w = X + 2.0 * Y * (1.0 / k - 1.0 / k_trial)", "w = X + 2.0 * Y * (1.0 / k - 1.0)",
+     ["test_ears.py::test_copies_lower_takes_the_bound"]),
     # the plain kernel's copies weighted 1/2 whatever their count
     ("ears-plain-copies-weight-two", "integrators/plugins/nee_path.py",
      "weight = dr.opaque(mi.Float, roulette.split_weight(copies))",
@@ -208,6 +214,10 @@ MUTANTS = [
     ("ears-trial-layout-pixel-major", _S,
      "pix = dr.select(in_trial, j % P, r // R)", "pix = dr.select(in_trial, j // R, r // R)",
      ["test_ears.py::test_copy_trial_takes_the_first_samples_of_every_pixel"]),
+    # the copies chosen from the trial's estimate, not its lower confidence bound
+    ("ears-copies-no-bound", _S,
+     "gain = (R - z * se) * (a + b) / (a + b * k)", "gain = R * (a + b) / (a + b * k)",
+     ["test_ears.py::test_copies_lower_takes_the_bound"]),
     # the classic pass's bound on the roulette's gain taken whatever the depth (where the
     # throughput rule ends paths, a roulette may lower the variance)
     ("ears-bound-any-depth", _S,

@@ -253,8 +253,9 @@ def test_plain_part_within_a_call(monkeypatch, fixed_parts):
     Mitsuba's ``path`` (Welch t per 4x4 block and channel, Sidak, at ``DEFAULT_ALPHA``;
     Cornell box, 16 px, max_depth 8, 24 renders of 256 spp each side).  Each render a fresh
     integrator, so each is rendered classic, roulette and plain (``KERNEL_COST`` infinite:
-    every roulette part goes plain), the plain part the copy trial.  Negative control (tests/mutants_ears.py): the plain
-    part's lanes inactive (its samples black)."""
+    every roulette part goes plain), the plain part the copy trial.  Negative controls
+    (tests/mutants_ears.py): the plain part's lanes inactive (its samples black); the trial's
+    lanes of two copies weighted as one."""
     from integrators.testing.stats import batch_images, image_test
     from integrators.testing.unbiased import MAX_REL_SE
     monkeypatch.setattr(splitting, "KERNEL_COST", float("inf"))
@@ -294,9 +295,9 @@ def test_copy_trial_splits_the_variance(monkeypatch):
     unbiased per pixel and pixels are independent: a z-test on the mean of the 256 pixels'
     differences, each divided by the pixel's value from an independent pass (+ 0.01), two-sided
     at ``DEFAULT_ALPHA`` (16 px Cornell box, max_depth 8, 256 spp per pass, every sample a
-    trial sample; normal approximation of a mean of 256).  ``EARS.copy_var`` is checked to be the trial's pixel
-    means.  Negative controls (tests/mutants_ears.py): the copies' half difference not halved;
-    V_0 the trial's variance less a whole copy's instead of half of it."""
+    trial sample; normal approximation of a mean of 256).  ``EARS.copy_var`` is checked to be
+    the trial's pixel means.  Negative controls (tests/mutants_ears.py): the copies' half
+    difference not halved; V_0 the trial's variance less a whole copy's instead of half of it."""
     from scipy import stats as sst
     from integrators.sampling.learning import relmse_denominator
     from integrators.testing.stats import DEFAULT_ALPHA, count_check
@@ -328,8 +329,11 @@ def test_copy_trial_splits_the_variance(monkeypatch):
     v1 = 2.0 * np.mean(d2 / ip2)
     assert np.isclose(e.copy_var[1], v1, rtol=1e-4)
     assert np.isclose(e.copy_var[0], np.mean(var_two / ip2) - v1 / 2, rtol=1e-4, atol=1e-9)
-    assert e.copies == splitting.copies_for(splitting.CAMERA_COST, 6.0 - splitting.CAMERA_COST,
-                                            *e.copy_var, e.split_max)
+    assert np.isclose(e.copy_tiles[1].sum() * 2.0 / d2.size, v1, rtol=1e-4) and \
+        np.isclose(e.copy_tiles[0].sum() / d2.size, np.mean(var_two / ip2), rtol=1e-4)
+    assert e.copies == splitting.copies_lower(splitting.CAMERA_COST,
+                                              6.0 - splitting.CAMERA_COST, *e.copy_tiles,
+                                              splitting.TRIAL_COPIES, e.split_max)
     # (the copies carry a real share here: the first hit's light samples)
     assert 0.2 < np.mean(d2 * wts) / np.mean(var_one * wts) < 0.9
     d = (var_one - (var_two + d2)) * wts
@@ -388,6 +392,29 @@ def test_copies_for_maximises_the_predicted_efficiency():
     # (the trial's gate, all of the variance the copies': a camera sample cheap against a copy,
     # as in the lamp in a glass shade, never gains COPY_GAIN; Veach's MIS scene may)
     assert f(2.0, 6.9, 0.0, 1.0, 4) == 1 and f(2.0, 1.1, 0.0, 1.0, 4) == 4
+
+
+def test_copies_lower_takes_the_bound():
+    """The copies chosen from the copy trial's tiles (``copies_lower``): the k of highest
+    lower confidence bound on the predicted gain, ``COPY_Z`` standard errors (the tiles'
+    spread) below it.  Tiles all alike (no spread) choose as ``copies_for`` does with their
+    means; the same means spread over the tiles, less or none; one tile, none."""
+    f, g = splitting.copies_lower, splitting.copies_for
+    v0, v1 = 0.076, 1.14        # (Veach's MIS scene as measured: 4 copies)
+    x, y = v0 + v1 / 2, v1 / 2      # (a two-copy trial: E[x] = V_0 + V_1 / 2, E[y] = V_1 / 2)
+    same = np.ones(400)
+    for k_max in (1, 2, 4, 8):
+        assert f(2.0, 1.1, x * same, y * same, 2, k_max) == g(2.0, 1.1, v0, v1, k_max)
+    assert f(2.0, 1.1, x * same, y * same, 2, 4) == 4
+    assert f(2.0, 6.9, x * same, y * same, 2, 4) == 1
+    # (one tile in twenty holds all of the copies' share: the bound far below the estimate)
+    rare = np.where(np.arange(400) % 20 == 0, 20.0, 0.0)
+    assert f(2.0, 1.1, x * same, y * rare, 2, 4) < 4
+    assert f(2.0, 1.1, x * same, y * rare, 2, 4, z=0.0) == 4
+    assert f(2.0, 1.1, [x], [y], 2, 4) == 1
+    t = np.arange(35.0).reshape(5, 7)
+    assert np.array_equal(splitting.tile_sums(t, 4), [t[:4, :4].sum(), t[:4, 4:].sum(),
+                                                      t[4:, :4].sum(), t[4:, 4:].sum()])
 
 
 def _pixel_weights(scene):

@@ -191,34 +191,37 @@ that also counted the deeper vertices twice, so no magnitudes are quoted).
 **The plain kernel's copies of the first hit (policy ``auto``).**  Where the render goes plain,
 its noise may be the first hit's light samples' (direct light: ``nee_path split=4`` lowers
 ``veach_mis``'s relMSE 3.9x for 2.8x the time), which no roulette touches and the statistics,
-the continuation's, do not see.  So its first plain pass (or part) is a copy trial: it takes
+the continuation's, do not see.  So its first plain pass is a copy trial: the first
+:meth:`EARS.trial_samples` of every pixel (``TRIAL_SHARE`` of the pass, at least 2) take
 ``TRIAL_COPIES`` (2) copies of the first hit (its light samples and continuation, ``nee_path``'s
-``split``) per camera sample and measures, in the image as the relMSE sees it (splatted with the
-film's filter, :meth:`EARS.measure_copies`), each pixel's variance (from the difference of its
-even and odd samples' filtered means) and the share of it the copies average (the filtered mean
-of half the difference of each camera sample's first two copies, whose variance given the
-camera samples is that share): one copy's share V_1 and the rest V_0, relative to the filtered
-pixels.  The plain kernel then takes the k in [1, ``split_max``] of highest predicted
-efficiency 1 / ((V_0 + V_1 / k)(a + b k)) (:func:`copies_for`; more than one only where it
-gains ``COPY_GAIN``), in the cost model's units: a = ``CAMERA_COST``, b the rest of the
-throughput rule's cost per camera sample as the last roulette pass estimated it.  No trial
-where the copies could not gain ``COPY_GAIN`` even holding all of the variance (V_0 = 0: a
-camera sample cheap against its copy, the lamp in a glass shade); a call that starts with the
-trial renders it in one part unless the rest of the call is worth a part's fixed cost (at 32
-spp, ``sharp_glossy``'s 4-spp call took 18 ms as two parts against ``nee_path``'s 7 ms).
-The count and the weight 1/k are opaque in the kernel (one kernel for every k).  Measured:
-``veach_mis`` 1.08-1.20x ``nee_path``'s efficiency with 4 copies chosen (0.83-0.94x with one),
-the other plain-fallback scenes 0.75-1.05x, the trial's part 5-10 % of their 0.06-0.3 s
-renders at 96 px (``benchmarks/results/ears_copy_gate``).  Measured before
-settling on this: per-pixel box sums instead of the filtered image read ``small_light``'s
-copies' share of the variance 3-9x too high (Mitsuba's Gaussian filter pools neighbouring
-pixels' samples, which averages the copies' noise, independent between samples, more than the
-variation over a pixel footprint, whose dark pixels next to the light hold its light): 2
-copies lower the box sums' variance 1.7x there and the image's 1.2x; the filtered pixels
-predict ``cornell_box``'s 4 copies' relMSE 3.2-3.5x lower (measured 3.42x) and
-``small_light``'s 1.28-1.55x (1.32x).  The kernels' running times of a one-copy and a
-two-copy part instead of the cost model varied too much between repeats to choose from (the
-small parts' launches, and the trial's per-pixel sums, are in those times).
+``split``), the others one, and the trial's samples measure, in the image as the relMSE sees it
+(splatted with the film's filter, :meth:`EARS.measure_copies`), each pixel's variance (from the
+difference of its even and odd samples' filtered means) and the share of it the copies average
+(the filtered mean of half the difference of each camera sample's first two copies, whose
+variance given the camera samples is that share): one copy's share V_1 and the rest V_0,
+relative to the filtered pixels.  The plain kernel then takes the k in [1, ``split_max``] of
+highest predicted efficiency 1 / ((V_0 + V_1 / k)(a + b k)) (:func:`copies_for`; more than one
+only where it gains ``COPY_GAIN``), in the cost model's units: a = ``CAMERA_COST``, b the rest
+of the throughput rule's cost per camera sample as the last roulette pass estimated it.  No
+trial where the copies could not gain ``COPY_GAIN`` even holding all of the variance (V_0 = 0: a
+camera sample cheap against its copy, the lamp in a glass shade).  The trial's lanes come first,
+sample-major (:meth:`Wavefront.trial_layout`), so a SIMD packet takes one count of copies; the
+chosen copies take effect from the next call.  (Before 2026-12-07 the trial was a whole pass, or
+the first part of a call, of two copies: the Cornell box's 4-spp trial call took 32 ms against
+``nee_path``'s 15 ms, ``many_lights``'s 32-spp one 123 ms against 84 ms, and a trial part cost
+its own trace.)  The count and the weight 1/k are opaque in the kernel (one kernel for every k).
+Measured: ``veach_mis`` 1.08-1.20x ``nee_path``'s efficiency with 4 copies chosen (0.83-0.94x
+with one), the other plain-fallback scenes 0.75-1.05x, the trial's part 5-10 % of their
+0.06-0.3 s renders at 96 px (``benchmarks/results/ears_copy_gate``).  Measured before settling
+on this: per-pixel box sums instead of the filtered image read ``small_light``'s copies' share
+of the variance 3-9x too high (Mitsuba's Gaussian filter pools neighbouring pixels' samples,
+which averages the copies' noise, independent between samples, more than the variation over a
+pixel footprint, whose dark pixels next to the light hold its light): 2 copies lower the box
+sums' variance 1.7x there and the image's 1.2x; the filtered pixels predict ``cornell_box``'s 4
+copies' relMSE 3.2-3.5x lower (measured 3.42x) and ``small_light``'s 1.28-1.55x (1.32x).  The
+kernels' running times of a one-copy and a two-copy part instead of the cost model varied too
+much between repeats to choose from (the small parts' launches, and the trial's per-pixel sums,
+are in those times).
 
 **The first hit's copies in the megakernel.**  With ``split_depth`` 1 a lane makes floor(n + u)
 copies of its first hit's light samples and continuation (n >= 1; above) and runs them one
@@ -460,11 +463,11 @@ SPLIT_COST = 1.05
 #: high often enough to split ``specular_box`` and ``sharp_glossy`` at 32 spp (0.52x and
 #: 0.17x with the split kernel's compilation in the time)
 SPLIT_TRY = 1.15
-#: policy ``auto``: once the render goes plain, its first plain pass (or part) takes this many
-#: copies of the first hit per camera sample (``nee_path``'s ``split``), and measures how much
-#: of a camera sample's variance they average (:meth:`EARS.measure_copies`), so that the plain
-#: kernel's copies can be chosen: where the first hit's light samples carry the noise (direct
-#: light), 2-4 copies pay
+#: policy ``auto``: once the render goes plain, its first plain pass's trial samples
+#: (``TRIAL_SHARE``) take this many copies of the first hit (``nee_path``'s ``split``), and
+#: measure how much of a camera sample's variance they average (:meth:`EARS.measure_copies`),
+#: so that the plain kernel's copies can be chosen: where the first hit's light samples carry
+#: the noise (direct light), 2-4 copies pay
 TRIAL_COPIES = 2
 #: the share of the copy trial's call whose samples take ``TRIAL_COPIES`` copies (the first
 #: ones of every pixel, at least two, an even count: :meth:`EARS.trial_samples`); the others
@@ -478,6 +481,17 @@ TRIAL_SHARE = 1 / 8
 #: ``split=4``'s measured 1.3-1.5; ``small_light`` 0.99-1.16 and ``sharp_glossy`` 1.09-1.2,
 #: measured 0.6 and 1.0-1.1; ``cornell_box`` 1.03-1.14, measured 1.03-1.14)
 COPY_GAIN = 1.3
+#: the copy trial's predicted gains are taken at their lower confidence bound, this many
+#: standard errors below the estimate (:func:`copies_lower`): the trial's few samples per
+#: pixel read ``many_lights``'s gain 1.27-1.42 over ten trials (96 px, 2 trial samples per
+#: pixel, standard error 0.05-0.08), so about half of its renders took 3-4 copies, half one,
+#: and their mean relMSE over their median time was 0.86x ``nee_path``'s efficiency at 128 spp
+#: (copies 1.1x, one copy about 1.0x); Veach's MIS scene, whose copies pay 1.3-1.5x, read
+#: 1.72-2.03 (bounds 1.56-1.77)
+COPY_Z = 2.0
+#: the copy trial's pixels are pooled in tiles of this many pixels a side for its standard
+#: errors (the film's filter correlates neighbouring pixels)
+COPY_TILE = 4
 #: atomic scatter-adds (the default may replicate the target per thread, with its size baked
 #: into the kernel: a recompilation whenever a wavefront's width changes)
 DIRECT = dr.ReduceMode.Direct
@@ -579,6 +593,9 @@ class EARS:
         self.copy_trial = False
         self.trial_copies = TRIAL_COPIES
         self.copy_var = None
+        #: the trial's sums per tile (``COPY_TILE``) of the pixels' relative variance and D^2
+        #: (:func:`copies_lower`)
+        self.copy_tiles = None
         self.rule_cost = None
         #: the copy trial's pass: its pixels' even and odd samples and the copies' half
         #: differences, filtered (``Wavefront.render``, :meth:`measure_copies`)
@@ -986,32 +1003,34 @@ class EARS:
         block = self.trial_block
         self.trial_block = None
         if self.trial_copies >= 2 and spp >= 2:
-            t = host(block.tensor()).reshape(-1, 5).astype(np.float64)
-            w_e, w_o = t[:, 1], t[:, 3]
+            t = host(block.tensor()).astype(np.float64)
+            t = t.reshape(t.shape[0], -1, 5)
+            w_e, w_o = t[..., 1], t[..., 3]
             ok = (w_e > 0) & (w_o > 0)
             w = np.where(ok, w_e + w_o, 1.0)
-            f_e, f_o = t[:, 0] / np.where(ok, w_e, 1.0), t[:, 2] / np.where(ok, w_o, 1.0)
+            f_e, f_o = t[..., 0] / np.where(ok, w_e, 1.0), t[..., 2] / np.where(ok, w_o, 1.0)
             var = (f_e - f_o) ** 2 * w_e * w_o / w ** 2
-            d2 = (t[:, 4] / w) ** 2
+            d2 = (t[..., 4] / w) ** 2
             # (relative to the filtered pixels, as the relMSE's reference is: next to a bright
             # pixel, a dark one's filtered value holds its neighbour's light and its variance)
-            ip2 = relmse_denominator((t[:, 0] + t[:, 2]) / w)
+            ip2 = relmse_denominator((t[..., 0] + t[..., 2]) / w)
             if ok.any():
-                v = float(np.mean((var / ip2)[ok]))
-                v_copies = float(np.mean((d2 / ip2)[ok]))
-                v1 = 2.0 * v_copies     # (D: the mean of two copies)
-                self.copy_var = (v - v1 / self.trial_copies, v1)
+                x, y = np.where(ok, var / ip2, 0.0), np.where(ok, d2 / ip2, 0.0)
+                n = float(ok.sum())
+                v1 = 2.0 * float(y.sum()) / n     # (D: the mean of two copies)
+                self.copy_var = (float(x.sum()) / n - v1 / self.trial_copies, v1)
+                self.copy_tiles = (tile_sums(x, COPY_TILE), tile_sums(y, COPY_TILE))
         self.copy_trial = False
         self.copies = self.best_copies()
 
     def best_copies(self) -> int:
-        """The plain kernel's copies per camera sample after the copy trial (:func:`copies_for`
-        with its variances, and the costs of the cost model: ``CAMERA_COST`` the camera
+        """The plain kernel's copies per camera sample after the copy trial (:func:`copies_lower`
+        with its tiles' sums, and the costs of the cost model: ``CAMERA_COST`` the camera
         sample's, the rest of the throughput rule's cost the copy's; 1 before the trial)."""
-        if self.copy_var is None or self.rule_cost is None:
+        if self.copy_tiles is None or self.rule_cost is None:
             return 1
-        return copies_for(CAMERA_COST, self.rule_cost - CAMERA_COST, *self.copy_var,
-                          self.split_max)
+        return copies_lower(CAMERA_COST, self.rule_cost - CAMERA_COST, *self.copy_tiles,
+                            self.trial_copies, self.split_max)
 
     @property
     def split_pending(self) -> bool:
@@ -1073,6 +1092,44 @@ def copies_for(a: float, b: float, v0: float, v1: float, k_max: int) -> int:
         return 1.0 / ((v0 + v1 / k) * (a + b * k))
     best = max(range(1, max(int(k_max), 1) + 1), key=efficiency)
     return best if efficiency(best) >= COPY_GAIN * efficiency(1) else 1
+
+
+def copies_lower(a: float, b: float, X, Y, k_trial: int, k_max: int, z: float = None) -> int:
+    """The copies k of the first hit per camera sample whose predicted efficiency gain over
+    one copy (:func:`copies_for`'s) has the highest lower confidence bound, ``z`` (default
+    ``COPY_Z``) standard errors below it; k >= 2 only where that bound is ``COPY_GAIN`` or
+    more.  ``X``, ``Y``: per tile of the copy trial's pixels (``k_trial`` copies), the sums of
+    their relative variance x and of the copies' share D^2, y (E[x] = V_0 + V_1 / k_trial,
+    E[y] = V_1 / 2): k copies' variance is then estimated by sum(x + 2 y (1/k - 1/k_trial)),
+    and its ratio to one copy's, a ratio of sums over the tiles, has the standard error
+    sqrt(n / (n - 1) sum_t (u_t - R w_t)^2) / sum_t w_t (the ratio estimator's, the tiles
+    taken as independent)."""
+    z = COPY_Z if z is None else float(z)
+    X, Y = np.asarray(X, np.float64).ravel(), np.asarray(Y, np.float64).ravel()
+    n = X.size
+    if not (a > 0 and b > 0) or n < 2:
+        return 1
+    u = X + 2.0 * Y * (1.0 - 1.0 / k_trial)
+    best, best_gain = 1, 1.0
+    for k in range(2, max(int(k_max), 1) + 1):
+        w = X + 2.0 * Y * (1.0 / k - 1.0 / k_trial)
+        W = w.sum()
+        if not W > 0:       # (k copies' variance read as none: no estimate to trust)
+            continue
+        R = u.sum() / W
+        se = np.sqrt(n / (n - 1) * np.sum((u - R * w) ** 2)) / W
+        gain = (R - z * se) * (a + b) / (a + b * k)
+        if gain > best_gain:
+            best, best_gain = k, gain
+    return best if best_gain >= COPY_GAIN else 1
+
+
+def tile_sums(x: np.ndarray, size: int) -> np.ndarray:
+    """Sums of the (h, w) image ``x`` over tiles of ``size`` pixels a side (the last row and
+    column of tiles as large as is left)."""
+    h, w = x.shape
+    rows = np.add.reduceat(x, np.arange(0, h, size), axis=0)
+    return np.add.reduceat(rows, np.arange(0, w, size), axis=1).ravel()
 
 
 def median_copy_cell(copies) -> float:
