@@ -266,9 +266,10 @@ def test_plain_part_within_a_call(monkeypatch, fixed_parts):
         it = ears(max_depth=8)
         ours.append(np.array(mi.render(scene, integrator=it, spp=256, seed=k)))
         parts.append(it.stats["parts"])
-    # (the plain part the copy trial: its first 28 samples of every pixel two copies of the
-    # first hit, the others one)
-    assert all(p == [("classic", 16), ("roulette", 16), ("plain", 224)] for p in parts), parts
+    # (the plain parts: the copy trial, its first 4 samples of every pixel two copies of the
+    # first hit, the others one; then the copies it chose)
+    assert all(p == [("classic", 16), ("roulette", 16), ("plain", 32), ("plain", 192)]
+               for p in parts), parts
     ref = batch_images(scene, mi.load_dict({"type": "path", "max_depth": 8}), batches=24,
                        spp=256, seed0=1000)
     r = image_test(np.array(ours, np.float64), ref)
@@ -620,9 +621,10 @@ def test_classic_pass_bounds_the_roulette_gain(monkeypatch, fixed_parts):
     assert e.mode == "plain" and e.gain is None and 1.0 < e.gain_bound < 10.0
     assert np.isclose(e.gain_bound, e.cost / (e.pass_cost_first / st["camera_rays"]))
     assert it.run_notes()["gain_bound"] == round(e.gain_bound, 3)
-    for depth, policy, parts in ((4, "auto", [("classic", 2), ("plain", 30)]),
+    for depth, policy, parts in ((4, "auto", [("classic", 2), ("plain", 2), ("plain", 28)]),
                                  (4, "never", [("classic", 2), ("plain", 30)]),
-                                 (8, "auto", [("classic", 2), ("roulette", 2), ("plain", 28)]),
+                                 (8, "auto", [("classic", 2), ("roulette", 2), ("plain", 4),
+                                              ("plain", 24)]),
                                  (4, "always", [("classic", 2), ("split", 30)])):
         it = ears(max_depth=depth, split_policy=policy)
         mi.render(scene, integrator=it, spp=32, seed=1)

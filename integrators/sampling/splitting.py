@@ -673,9 +673,13 @@ class EARS:
         launches and learning; ``WEIGH_PART_COST``): a decision switches the rest to a kernel
         that saves at most the share 1 - 1 / ``KERNEL_COST`` of the learned kernel's running
         time, so where that saving on the samples left is less, the rest is one part, and its
-        estimate decides the next call's mode."""
+        estimate decides the next call's mode.  The copy trial (plain, :attr:`copy_trial`) is
+        such a part where a part of the call decided the plain kernel, so that the rest of the
+        call takes the copies it chooses (one call of N spp: ``veach_mis``'s copies pay
+        1.3-1.5x); a call that starts with it is one part (the trial's samples a share of it:
+        an extra part's trace cost more than the copies gain on the rest of a short call)."""
         left = spp - done
-        if not self.deciding or k + 1 >= LEARN_PARTS:
+        if not self.deciding or k + 1 >= LEARN_PARTS or (k == 0 and self.mode == "plain"):
             return left
         if k > 0 and WEIGH_PART_COST and self.part_cost is not None:
             fixed, per_spp = self.part_cost
@@ -695,8 +699,8 @@ class EARS:
         decay by ``DECAY`` after every pass, whatever its size, so parts in every call would
         shorten what the regions remember (the indirect room, 24 px, calls of 32 spp in parts
         while learning: 13 learned passes in three calls, not settled)."""
-        if self.mode == "plain":        # (the copy trial: a few samples of the call)
-            return False
+        if self.mode == "plain":        # (the copy trial, see part)
+            return bool(self.copy_trial)
         if not self.recording:
             return False
         if self.mode == "classic":
