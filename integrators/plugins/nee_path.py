@@ -195,7 +195,7 @@ class NEEPath(IntegratorTemplate):
             t0 = time.perf_counter()
             if self.ears.learning and mode != "plain":
                 self.ears.learn(part, seconds[0] if timed else 0.0)
-            elif mode == "plain" and self.ears.copy_trial:
+            elif wave.trial:
                 self.ears.measure_copies(part)
             if clock and seconds[1] is not None:
                 self.ears.part_cost = (seconds[1] + time.perf_counter() - t0, seconds[2] / part)

@@ -200,28 +200,31 @@ difference of its even and odd samples' filtered means) and the share of it the 
 (the filtered mean of half the difference of each camera sample's first two copies, whose
 variance given the camera samples is that share): one copy's share V_1 and the rest V_0,
 relative to the filtered pixels.  The plain kernel then takes the k in [1, ``split_max``] of
-highest predicted efficiency 1 / ((V_0 + V_1 / k)(a + b k)) (:func:`copies_for`; more than one
-only where it gains ``COPY_GAIN``), in the cost model's units: a = ``CAMERA_COST``, b the rest
-of the throughput rule's cost per camera sample as the last roulette pass estimated it.  No
-trial where the copies could not gain ``COPY_GAIN`` even holding all of the variance (V_0 = 0: a
-camera sample cheap against its copy, the lamp in a glass shade).  The trial's lanes come first,
-sample-major (:meth:`Wavefront.trial_layout`), so a SIMD packet takes one count of copies; the
-chosen copies take effect from the next call.  (Before 2026-12-07 the trial was a whole pass, or
-the first part of a call, of two copies: the Cornell box's 4-spp trial call took 32 ms against
-``nee_path``'s 15 ms, ``many_lights``'s 32-spp one 123 ms against 84 ms, and a trial part cost
-its own trace.)  The count and the weight 1/k are opaque in the kernel (one kernel for every k).
-Measured: ``veach_mis`` 1.08-1.20x ``nee_path``'s efficiency with 4 copies chosen (0.83-0.94x
-with one), the other plain-fallback scenes 0.75-1.05x, the trial's part 5-10 % of their
-0.06-0.3 s renders at 96 px (``benchmarks/results/ears_copy_gate``).  Measured before settling
-on this: per-pixel box sums instead of the filtered image read ``small_light``'s copies' share
-of the variance 3-9x too high (Mitsuba's Gaussian filter pools neighbouring pixels' samples,
-which averages the copies' noise, independent between samples, more than the variation over a
-pixel footprint, whose dark pixels next to the light hold its light): 2 copies lower the box
-sums' variance 1.7x there and the image's 1.2x; the filtered pixels predict ``cornell_box``'s 4
-copies' relMSE 3.2-3.5x lower (measured 3.42x) and ``small_light``'s 1.28-1.55x (1.32x).  The
-kernels' running times of a one-copy and a two-copy part instead of the cost model varied too
-much between repeats to choose from (the small parts' launches, and the trial's per-pixel sums,
-are in those times).
+highest predicted efficiency 1 / ((V_0 + V_1 / k)(a + b k)) at its lower confidence bound
+(:func:`copies_lower`, ``COPY_Z`` standard errors over tiles of the trial's pixels; more than
+one only where that bound gains ``COPY_GAIN`` over one copy), in the cost model's units: a =
+``CAMERA_COST``, b the rest of the throughput rule's cost per camera sample as the last roulette
+(or classic) pass estimated it.  No trial where the copies could not gain ``COPY_GAIN`` even
+holding all of the variance (V_0 = 0: a camera sample cheap against its copy, the lamp in a
+glass shade).  The trial's lanes come first, sample-major (:meth:`Wavefront.trial_layout`), so a
+SIMD packet takes one count of copies.  Where a part of a call went plain the trial is the call's
+next part and the rest of the call takes the copies chosen; a call that starts with it is one
+part (:meth:`EARS.part`).  (Before 2026-12-07 the trial was a whole pass, or the first part of a
+call, of two copies: the Cornell box's 4-spp trial call took 32 ms against ``nee_path``'s 15 ms,
+``many_lights``'s 32-spp one 123 ms against 84 ms, and a trial part cost its own trace.)  The
+count and the weight 1/k are opaque in the kernel (one kernel for every k).  Measured:
+``veach_mis`` 1.08-1.20x ``nee_path``'s efficiency with 4 copies chosen (0.83-0.94x with one),
+the other plain-fallback scenes 0.75-1.05x, the trial's part 5-10 % of their 0.06-0.3 s renders
+at 96 px (``benchmarks/results/ears_copy_gate``).  Measured before settling on this: per-pixel
+box sums instead of the filtered image read ``small_light``'s copies' share of the variance 3-9x
+too high (Mitsuba's Gaussian filter pools neighbouring pixels' samples, which averages the
+copies' noise, independent between samples, more than the variation over a pixel footprint,
+whose dark pixels next to the light hold its light): 2 copies lower the box sums' variance 1.7x
+there and the image's 1.2x; the filtered pixels predict ``cornell_box``'s 4 copies' relMSE
+3.2-3.5x lower (measured 3.42x) and ``small_light``'s 1.28-1.55x (1.32x).  The kernels' running
+times of a one-copy and a two-copy part instead of the cost model varied too much between
+repeats to choose from (the small parts' launches, and the trial's per-pixel sums, are in those
+times).
 
 **The first hit's copies in the megakernel.**  With ``split_depth`` 1 a lane makes floor(n + u)
 copies of its first hit's light samples and continuation (n >= 1; above) and runs them one
@@ -926,7 +929,7 @@ class EARS:
         cost, ``c`` / ``c_first``, ``c`` the pass's (the rule's) cost per camera sample and
         ``c_first`` its cost had every path ended at its first hit after the hit's light
         samples.  Below ``KERNEL_COST`` no roulette pass is run to estimate the gain, and the
-        render goes plain (``sharp_glossy``, max_depth 4, 96 px: bound 1.18, the roulette
+        render goes plain (``sharp_glossy``, max_depth 4, 96 px: bound 1.297, the roulette
         pass estimated 1.000; Veach's MIS scene, ``small_light``, ``many_lights``: bounds
         1.31-1.34, estimated 1.000-1.03).  (Policy ``auto``'s split trial, where the roulette
         gains ``SPLIT_TRY`` or more, is not run either: the first hit's splitting is then the
@@ -1247,6 +1250,8 @@ class Wavefront:
         self.replicated = ears.split_depth if split and not self.copies else 0
         self.stats = dict(camera_rays=0, continuation_rays=0, shadow_rays=0, camera_samples=0,
                           max_lanes=0, bounces=0, batches=0, capped_bounces=0)
+        #: whether the pass ran the copy trial (:meth:`render`)
+        self.trial = False
         #: the megakernel's sums of work and rays over the pass's batches (kernel_batch)
         self._totals = None
         #: a roulette pass's estimate of the throughput rule's cost, summed (kernel_batch)
@@ -1299,7 +1304,7 @@ class Wavefront:
         plain = self.ears.mode == "plain"
         # (a plain pass of the copy trial: what its trial samples measure splatted with the
         # film's filter, EARS.measure_copies; the sample border left out)
-        trial = plain and bool(self.ears.copy_trial) and spp >= 2
+        trial = self.trial = plain and bool(self.ears.copy_trial) and spp >= 2
         if trial:
             self.ears.trial_block = mi.ImageBlock(film.crop_size(), film.crop_offset(), 5,
                                                   film.rfilter())
