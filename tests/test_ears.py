@@ -266,9 +266,9 @@ def test_plain_part_within_a_call(monkeypatch, fixed_parts):
         it = ears(max_depth=8)
         ours.append(np.array(mi.render(scene, integrator=it, spp=256, seed=k)))
         parts.append(it.stats["parts"])
-    # (the plain parts: the copy trial, its first 4 samples of every pixel two copies of the
-    # first hit, the others one; then the copies it chose)
-    assert all(p == [("classic", 16), ("roulette", 16), ("plain", 32), ("plain", 192)]
+    # (the plain parts: the copy trial, every sample two copies of the first hit; then the
+    # copies it chose)
+    assert all(p == [("classic", 16), ("roulette", 16), ("plain", 16), ("plain", 208)]
                for p in parts), parts
     ref = batch_images(scene, mi.load_dict({"type": "path", "max_depth": 8}), batches=24,
                        spp=256, seed0=1000)
@@ -344,11 +344,13 @@ def test_copy_trial_splits_the_variance(monkeypatch):
     assert p >= DEFAULT_ALPHA, (d.mean(), np.mean(var_one * wts), z)
 
 
-def test_copy_trial_takes_the_first_samples_of_every_pixel():
+def test_copy_trial_takes_the_first_samples_of_every_pixel(monkeypatch):
     """The copy trial's samples (``TRIAL_SHARE`` of its pass, the first of every pixel, laid
     out sample-major: ``Wavefront.trial_layout``): with a box filter each pixel's trial block
     holds exactly its own trial samples, half even and half odd, and every (pixel, sample)
-    is rendered once."""
+    is rendered once; a trial part of its own (where a part of the call went plain) is all
+    trial samples.  Negative controls (tests/mutants_ears.py): every lane in the block; the
+    trial's lanes pixel-major; the trial part's samples a share of it."""
     import drjit as dr
     text = (ROOT / "scenes" / "cornell_box.xml").read_text()
     scene = mi.load_string(text.replace('<rfilter type="gaussian"/>', '<rfilter type="box"/>'),
@@ -372,6 +374,21 @@ def test_copy_trial_takes_the_first_samples_of_every_pixel():
         assert np.array_equal(np.sort(idx), np.arange(256 * spp))
         assert np.array_equal(np.sort(idx[on]), np.sort(
             (np.arange(256)[:, None] * spp + np.arange(n_trial)).ravel()))
+    # a trial part of its own (a part of the call went plain): every sample a trial sample
+    monkeypatch.setattr(splitting, "KERNEL_COST", float("inf"))
+    monkeypatch.setattr(splitting, "COPY_GAIN", 1.0)
+    monkeypatch.setattr(splitting, "WEIGH_PART_COST", False)
+    blocks, orig = [], splitting.EARS.measure_copies
+
+    def keep(self, s):
+        blocks.append(np.array(self.trial_block.tensor()))
+        orig(self, s)
+    monkeypatch.setattr(splitting.EARS, "measure_copies", keep)
+    it = ears(max_depth=8)
+    mi.render(scene, integrator=it, spp=64, seed=2)
+    assert it.stats["parts"] == [("classic", 4), ("roulette", 4), ("plain", 4), ("plain", 52)]
+    t = blocks[0].reshape(-1, 5)
+    assert np.allclose(t[:, 1], 2.0) and np.allclose(t[:, 3], 2.0)
 
 
 def test_copies_for_maximises_the_predicted_efficiency():
@@ -623,8 +640,8 @@ def test_classic_pass_bounds_the_roulette_gain(monkeypatch, fixed_parts):
     assert it.run_notes()["gain_bound"] == round(e.gain_bound, 3)
     for depth, policy, parts in ((4, "auto", [("classic", 2), ("plain", 2), ("plain", 28)]),
                                  (4, "never", [("classic", 2), ("plain", 30)]),
-                                 (8, "auto", [("classic", 2), ("roulette", 2), ("plain", 4),
-                                              ("plain", 24)]),
+                                 (8, "auto", [("classic", 2), ("roulette", 2), ("plain", 2),
+                                              ("plain", 26)]),
                                  (4, "always", [("classic", 2), ("split", 30)])):
         it = ears(max_depth=depth, split_policy=policy)
         mi.render(scene, integrator=it, spp=32, seed=1)

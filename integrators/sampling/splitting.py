@@ -635,6 +635,9 @@ class EARS:
         #: kernels' running seconds per sample per pixel, i.e. per spp over the film); None
         #: before the call's first part
         self.part_cost = None
+        #: whether the part :meth:`part` last gave is a copy trial's part of its own (every
+        #: sample a trial sample)
+        self.trial_part = False
 
     # ---- per-pixel state -----------------------------------------------------------------
     def film(self, shape, view=None):
@@ -679,9 +682,12 @@ class EARS:
         estimate decides the next call's mode.  The copy trial (plain, :attr:`copy_trial`) is
         such a part where a part of the call decided the plain kernel, so that the rest of the
         call takes the copies it chooses (one call of N spp: ``veach_mis``'s copies pay
-        1.3-1.5x); a call that starts with it is one part (the trial's samples a share of it:
-        an extra part's trace cost more than the copies gain on the rest of a short call)."""
+        1.3-1.5x): a part of the first part's size, every sample of it a trial sample
+        (:attr:`trial_part`); a call that starts with it is one part, the trial's samples a
+        share of it (an extra part's trace cost more than the copies gain on the rest of a
+        short call)."""
         left = spp - done
+        self.trial_part = False
         if not self.deciding or k + 1 >= LEARN_PARTS or (k == 0 and self.mode == "plain"):
             return left
         if k > 0 and WEIGH_PART_COST and self.part_cost is not None:
@@ -689,8 +695,11 @@ class EARS:
             if left * per_spp * (1.0 - 1.0 / max(KERNEL_COST, 1.0)) < fixed:
                 return left
         first = max(2, int(round(spp * FIRST_PART)))
-        size = min(first if k == 0 else done, left)
-        return left if left - size < 2 else size
+        trial = self.mode == "plain"
+        size = min(first if k == 0 or trial else done, left)
+        size = left if left - size < 2 else size
+        self.trial_part = trial and size < left
+        return size
 
     @property
     def deciding(self) -> bool:
@@ -984,8 +993,11 @@ class EARS:
         return max(LEARNED_MODES, key=lambda m: self.measured[m])
 
     def trial_samples(self, spp: int) -> int:
-        """The copy trial's samples per pixel in a pass of ``spp`` (at least 2): the share
-        ``TRIAL_SHARE`` of it, at least two, an even count."""
+        """The copy trial's samples per pixel in a pass of ``spp`` (at least 2): all of a part
+        of its own (:attr:`trial_part`), else the share ``TRIAL_SHARE`` of it, at least two,
+        an even count."""
+        if self.trial_part:
+            return spp
         return min(spp, max(2, 2 * int(round(spp * TRIAL_SHARE / 2))))
 
     def measure_copies(self, spp: int):
