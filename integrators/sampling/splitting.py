@@ -1103,14 +1103,11 @@ def copies_for(a: float, b: float, v0: float, v1: float, k_max: int) -> int:
     (the camera ray's footprint and first hit, which the copies share); ``a`` the cost of a
     camera sample before its copies, ``b`` a copy's.  k >= 2 only where it gains ``COPY_GAIN``
     over one copy."""
+    # (its variances as two like tiles of a two-copy trial, E[x] = V_0 + V_1 / 2, E[y] =
+    # V_1 / 2: no spread, so copies_lower's bound is the estimate)
     v0, v1 = max(v0, 0.0), max(v1, 0.0)
-    if not (a > 0 and b > 0 and v0 + v1 > 0):
-        return 1
-
-    def efficiency(k):
-        return 1.0 / ((v0 + v1 / k) * (a + b * k))
-    best = max(range(1, max(int(k_max), 1) + 1), key=efficiency)
-    return best if efficiency(best) >= COPY_GAIN * efficiency(1) else 1
+    x, y = v0 + v1 / 2.0, v1 / 2.0
+    return copies_lower(a, b, [x, x], [y, y], 2, k_max, z=0.0)
 
 
 def copies_lower(a: float, b: float, X, Y, k_trial: int, k_max: int, z: float = None) -> int:
