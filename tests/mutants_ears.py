@@ -208,7 +208,8 @@ MUTANTS = [
      ["test_ears.py::test_plain_part_within_a_call"]),
     # every lane of the copy trial's pass in its block, the one-copy lanes too
     ("ears-trial-block-every-lane", _S,
-     "on = dr.select(in_trial, mi.Float(1.0), 0.0)", "on = mi.Float(1.0)",
+     "                                          active=in_trial)",
+     "                                          active=True)",
      ["test_ears.py::test_copy_trial_takes_the_first_samples_of_every_pixel"]),
     # the trial's samples the first n_trial lanes of the pass instead of every pixel's first
     ("ears-trial-layout-pixel-major", _S,
@@ -231,6 +232,12 @@ MUTANTS = [
     # the bound's first cost without the first hit's light samples (the bound read high)
     ("ears-bound-first-light-left-out", _S,
      "cost_first = mi.Float(cost)", "cost_first = mi.Float(cost) * 0.0",
+     ["test_ears.py::test_classic_pass_bounds_the_roulette_gain"]),
+    # the bound against KERNEL_COST alone (a roulette pass run where at its best it gains
+    # less than BOUND_LOSS over the plain kernel)
+    ("ears-bound-no-margin", _S,
+     "if self.gain_bound * (1.0 - BOUND_LOSS) < KERNEL_COST:",
+     "if self.gain_bound < KERNEL_COST:",
      ["test_ears.py::test_classic_pass_bounds_the_roulette_gain"]),
     # the parts of a call that decide the mode all of the first part's size (the split trial
     # as small as the classic part)

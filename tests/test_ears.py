@@ -623,10 +623,12 @@ def test_classic_pass_bounds_the_roulette_gain(monkeypatch, fixed_parts):
     variance, so the learned roulette gains at most the cost it saves: the classic pass's cost
     over its cost had every path ended after the first hit's light samples
     (``EARS.bound_gain``).  Below ``KERNEL_COST`` the render goes plain without a roulette
-    pass (``KERNEL_COST`` 10 here: every bound is below it); at max_depth 2 the bound's first
-    cost is the camera rays' and the first hit's shadow rays' (none later); at max_depth 8,
-    or under policy ``always``, no bound.  Negative controls (tests/mutants_ears.py): the
-    bound taken whatever the depth; the first hit's light samples left out of its cost."""
+    pass (``KERNEL_COST`` 10 here: every bound is below it), and also where the roulette at
+    its bound would be less than 1 / (1 - ``BOUND_LOSS``) as efficient as the plain kernel; at
+    max_depth 2 the bound's first cost is the camera rays' and the first hit's shadow rays'
+    (none later); at max_depth 8, or under policy ``always``, no bound.  Negative controls
+    (tests/mutants_ears.py): the bound taken whatever the depth; the first hit's light samples
+    left out of its cost; the bound against ``KERNEL_COST`` alone."""
     scene = mi.load_file(str(ROOT / "scenes" / "cornell_box.xml"), res="16")
     monkeypatch.setattr(splitting, "KERNEL_COST", 10.0)
     it = ears(max_depth=2)
@@ -647,6 +649,13 @@ def test_classic_pass_bounds_the_roulette_gain(monkeypatch, fixed_parts):
         mi.render(scene, integrator=it, spp=32, seed=1)
         assert it.stats["parts"] == parts, (depth, policy, it.stats["parts"])
         assert (it.ears.gain_bound is None) == (parts[1][0] != "plain" or depth > 5)
+    # (the margin: plain up to KERNEL_COST / (1 - BOUND_LOSS), the roulette pass above it)
+    edge = splitting.KERNEL_COST / (1.0 - splitting.BOUND_LOSS)
+    for bound, plain in ((splitting.KERNEL_COST * 1.01, True), (edge * 0.99, True),
+                         (edge * 1.01, False)):
+        e = splitting.EARS(scene, 0.05, 8, 5, policy="auto", max_depth=4)
+        e.bound_gain(3.0 * bound, 3.0)
+        assert e.plain == plain and np.isclose(e.gain_bound, bound), (bound, plain)
 
 
 def test_auto_policy_decisions(monkeypatch):

@@ -432,6 +432,15 @@ MODES = ("classic", "roulette", "split", "plain")
 #: (Veach's MIS scene, 96 px, 256 spp: 108.6 ms against 86.3 ms for 0.95x the rays).  A
 #: gain below it does not pay for learning (:meth:`EARS.compare`)
 KERNEL_COST = 1.3
+#: the most efficiency a render may give away by going plain on a classic pass's bound
+#: (:meth:`EARS.bound_gain`): where the learned roulette, at its bound, would be at most
+#: 1 / (1 - BOUND_LOSS) as efficient as the plain kernel, no roulette pass is run to estimate
+#: it.  The bound is far from the gain where the bound is near ``KERNEL_COST`` (``small_light``,
+#: ``many_lights``, Veach's MIS scene, 96 px: bounds 1.31-1.34, roulette passes' estimates
+#: 1.00-1.03), and the roulette pass costs a part's fixed cost, a trace of the learned kernel
+#: (4-6 ms at 96 px; 40-50 ms with ``many_lights``'s thousands of emitters, a sixth of a
+#: 128-spp render), and its own samples in that kernel
+BOUND_LOSS = 0.05
 #: the modes the ``measured`` policy chooses between (``classic`` runs only while nothing is
 #: learned: measured against the learned modes, one early pass's heavy-tailed variance made it
 #: the choice in the indirect room, at 0.76x the efficiency of roulette)
@@ -937,19 +946,20 @@ class EARS:
         only adds variance there (E[X^2 / q] >= E[X^2]), so the gain is at most the saving in
         cost, ``c`` / ``c_first``, ``c`` the pass's (the rule's) cost per camera sample and
         ``c_first`` its cost had every path ended at its first hit after the hit's light
-        samples.  Below ``KERNEL_COST`` no roulette pass is run to estimate the gain, and the
-        render goes plain (``sharp_glossy``, max_depth 4, 96 px: bound 1.297, the roulette
-        pass estimated 1.000; Veach's MIS scene, ``small_light``, ``many_lights``: bounds
-        1.31-1.34, estimated 1.000-1.03).  (Policy ``auto``'s split trial, where the roulette
-        gains ``SPLIT_TRY`` or more, is not run either: the first hit's splitting is then the
-        plain kernel's copies, chosen by the copy trial.  A tighter bound from the
-        continuations' second moments is not to be had: where A = v - sum e_t^2 is negative,
-        as in ``small_light``, (A + sum e_t^2 / q_t)(B + sum q_t c_t) has no Cauchy-Schwarz
-        bound, and continuations that add nothing are ended at no cost in variance.)"""
+        samples.  Below ``KERNEL_COST`` / (1 - ``BOUND_LOSS``) no roulette pass is run to
+        estimate the gain, and the render goes plain (max_depth 4, 96 px: ``sharp_glossy``'s
+        bound 1.297, the roulette pass estimated 1.000; Veach's MIS scene, ``small_light``,
+        ``many_lights``: bounds 1.31-1.34, estimated 1.000-1.03).  (Policy ``auto``'s split
+        trial, where the roulette gains ``SPLIT_TRY`` or more, is not run either: the first
+        hit's splitting is then the plain kernel's copies, chosen by the copy trial.  A
+        tighter bound from the continuations' second moments is not to be had: where A = v -
+        sum e_t^2 is negative, as in ``small_light``, (A + sum e_t^2 / q_t)(B + sum q_t c_t)
+        has no Cauchy-Schwarz bound, and continuations that add nothing are ended at no cost
+        in variance.)"""
         if not (c > 0 and c_first > 0):
             return
         self.gain_bound = c / c_first
-        if self.gain_bound < KERNEL_COST:
+        if self.gain_bound * (1.0 - BOUND_LOSS) < KERNEL_COST:
             self.rule_cost = c
             self.go_plain()
 
@@ -1353,11 +1363,11 @@ class Wavefront:
             # variants is the wavelength sample's importance weight, tens of times the radiance)
             lum = luminance(L)
             if trial:       # (the pixel's even and odd trial samples apart, the copies' half)
-                on = dr.select(in_trial, mi.Float(1.0), 0.0)
-                even = dr.select(((idx - pixel * spp) & 1) == 0, on, 0.0)
-                odd = on - even
+                even = dr.select(((idx - pixel * spp) & 1) == 0, mi.Float(1.0), 0.0)
+                odd = 1.0 - even
                 self.ears.trial_block.put(pos, [lum * even, even, lum * odd, odd,
-                                                mi.Float(0.0) if half is None else half * on])
+                                                mi.Float(0.0) if half is None else half],
+                                          active=in_trial)
             dr.scatter_reduce(dr.ReduceOp.Add, self.ears.pass_s1, lum, pixel, mode=DIRECT)
             dr.scatter_reduce(dr.ReduceOp.Add, self.ears.pass_s2, lum * lum, pixel, mode=DIRECT)
             dr.eval(block.tensor(), self.ears.pass_s1, self.ears.pass_s2, self._totals,
