@@ -219,10 +219,16 @@ MUTANTS = [
     ("ears-copies-no-bound", _S,
      "gain = (R - z * se) * (a + b) / (a + b * k)", "gain = R * (a + b) / (a + b * k)",
      ["test_ears.py::test_copies_lower_takes_the_bound"]),
-    # a trial part of its own with only a share of its samples trial samples
-    ("ears-trial-part-a-share", _S,
-     "self.trial_part = trial and size < left", "self.trial_part = False",
+    # the trial part the first part's size (a sixteenth of the call in two copies)
+    ("ears-trial-part-first-size", _S,
+     "size = min(TRIAL_SAMPLES if trial else first if k == 0 else done, left)",
+     "size = min(first if k == 0 or trial else done, left)",
      ["test_ears.py::test_copy_trial_takes_the_first_samples_of_every_pixel"]),
+    # a call that starts with the copy trial always split into the trial and the rest (an
+    # extra part's trace, whatever the call's length)
+    ("ears-trial-part-unweighed", _S,
+     "if (k > 0 or trial) and weigh:", "if k > 0 and weigh:",
+     ["test_ears.py::test_parts_weigh_their_fixed_cost"]),
     # the classic pass's bound on the roulette's gain taken whatever the depth (where the
     # throughput rule ends paths, a roulette may lower the variance)
     ("ears-bound-any-depth", _S,
@@ -242,8 +248,8 @@ MUTANTS = [
     # the parts of a call that decide the mode all of the first part's size (the split trial
     # as small as the classic part)
     ("ears-parts-not-doubling", _S,
-     "size = min(first if k == 0 or trial else done, left)",
-     "size = min(first, left)",
+     "size = min(TRIAL_SAMPLES if trial else first if k == 0 else done, left)",
+     "size = min(TRIAL_SAMPLES if trial else first, left)",
      ["test_ears.py::test_auto_policy_tries_splitting_then_keeps_what_pays"]),
     # the first hit's light samples, in the megakernel, counted whole by the first copy where
     # it splits instead of weighted 1/n like the rest of it (the unit of its copies is the

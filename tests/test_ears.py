@@ -268,7 +268,7 @@ def test_plain_part_within_a_call(monkeypatch, fixed_parts):
         parts.append(it.stats["parts"])
     # (the plain parts: the copy trial, every sample two copies of the first hit; then the
     # copies it chose)
-    assert all(p == [("classic", 16), ("roulette", 16), ("plain", 16), ("plain", 208)]
+    assert all(p == [("classic", 16), ("roulette", 16), ("plain", 2), ("plain", 222)]
                for p in parts), parts
     ref = batch_images(scene, mi.load_dict({"type": "path", "max_depth": 8}), batches=24,
                        spp=256, seed0=1000)
@@ -303,7 +303,7 @@ def test_copy_trial_splits_the_variance(monkeypatch):
     from integrators.sampling.learning import relmse_denominator
     from integrators.testing.stats import DEFAULT_ALPHA, count_check
     monkeypatch.setattr(splitting, "FIRST_PART", 1.0)     # (each call one part)
-    monkeypatch.setattr(splitting, "TRIAL_SHARE", 1.0)    # (every sample a trial sample)
+    monkeypatch.setattr(splitting, "TRIAL_SAMPLES", 256)  # (every sample a trial sample)
     text = (ROOT / "scenes" / "cornell_box.xml").read_text()
     assert text.count('<rfilter type="gaussian"/>') == 1
     scene = mi.load_string(text.replace('<rfilter type="gaussian"/>', '<rfilter type="box"/>'),
@@ -345,17 +345,18 @@ def test_copy_trial_splits_the_variance(monkeypatch):
 
 
 def test_copy_trial_takes_the_first_samples_of_every_pixel(monkeypatch):
-    """The copy trial's samples (``TRIAL_SHARE`` of its pass, the first of every pixel, laid
-    out sample-major: ``Wavefront.trial_layout``): with a box filter each pixel's trial block
-    holds exactly its own trial samples, half even and half odd, and every (pixel, sample)
-    is rendered once; a trial part of its own (where a part of the call went plain) is all
-    trial samples.  Negative controls (tests/mutants_ears.py): every lane in the block; the
-    trial's lanes pixel-major; the trial part's samples a share of it."""
+    """The copy trial's samples (``TRIAL_SAMPLES`` of its pass, the first of every pixel,
+    laid out sample-major: ``Wavefront.trial_layout``): with a box filter each pixel's trial
+    block holds exactly its own trial samples, half even and half odd, and every (pixel,
+    sample) is rendered once; a trial part of its own (where a part of the call went plain)
+    is ``TRIAL_SAMPLES`` long.  Negative controls (tests/mutants_ears.py): every lane in the
+    block; the trial's lanes pixel-major; the trial part the first part's size."""
     import drjit as dr
     text = (ROOT / "scenes" / "cornell_box.xml").read_text()
     scene = mi.load_string(text.replace('<rfilter type="gaussian"/>', '<rfilter type="box"/>'),
                            res="16")
-    for spp, n_trial in ((32, 4), (2, 2), (5, 2), (64, 8)):
+    for spp, samples, n_trial in ((32, 4, 4), (2, 4, 2), (5, 2, 2), (64, 8, 8)):
+        monkeypatch.setattr(splitting, "TRIAL_SAMPLES", samples)
         it = ears(max_depth=8)
         mi.render(scene, integrator=it, spp=2, seed=0)      # (the pixels' values)
         e = it.ears
@@ -374,7 +375,8 @@ def test_copy_trial_takes_the_first_samples_of_every_pixel(monkeypatch):
         assert np.array_equal(np.sort(idx), np.arange(256 * spp))
         assert np.array_equal(np.sort(idx[on]), np.sort(
             (np.arange(256)[:, None] * spp + np.arange(n_trial)).ravel()))
-    # a trial part of its own (a part of the call went plain): every sample a trial sample
+    # a trial part of its own (a part of the call went plain): TRIAL_SAMPLES, all trial samples
+    monkeypatch.setattr(splitting, "TRIAL_SAMPLES", 2)
     monkeypatch.setattr(splitting, "KERNEL_COST", float("inf"))
     monkeypatch.setattr(splitting, "COPY_GAIN", 1.0)
     monkeypatch.setattr(splitting, "WEIGH_PART_COST", False)
@@ -386,9 +388,9 @@ def test_copy_trial_takes_the_first_samples_of_every_pixel(monkeypatch):
     monkeypatch.setattr(splitting.EARS, "measure_copies", keep)
     it = ears(max_depth=8)
     mi.render(scene, integrator=it, spp=64, seed=2)
-    assert it.stats["parts"] == [("classic", 4), ("roulette", 4), ("plain", 4), ("plain", 52)]
+    assert it.stats["parts"] == [("classic", 4), ("roulette", 4), ("plain", 2), ("plain", 54)]
     t = blocks[0].reshape(-1, 5)
-    assert np.allclose(t[:, 1], 2.0) and np.allclose(t[:, 3], 2.0)
+    assert np.allclose(t[:, 1], 1.0) and np.allclose(t[:, 3], 1.0)
 
 
 def test_copies_for_maximises_the_predicted_efficiency():
@@ -594,9 +596,11 @@ def test_parts_weigh_their_fixed_cost(monkeypatch):
     """A deciding part after a call's first is split off only where the samples left are worth
     its fixed cost: their running time in the learned kernel (the last part's per sample) times
     the share 1 - 1 / KERNEL_COST a switch of kernel could save, against the last part's fixed
-    seconds.  The rule on given costs, then in a render where no switch saves anything
-    (KERNEL_COST 1): the classic part, then the rest in one roulette part, with the part's
-    cost measured."""
+    seconds; the copy trial's part of its own too, in a call's first part by the last
+    deciding part's cost.  The rule on given costs, then in a render where no switch saves
+    anything (KERNEL_COST 1): the classic part, then the rest in one roulette part, with the
+    part's cost measured.  Negative control (tests/mutants_ears.py): a call that starts with
+    the trial split whatever its length."""
     scene = mi.load_file(str(ROOT / "scenes" / "cornell_box.xml"), res="16")
     e = splitting.EARS(scene, 0.05, 8, 5, policy="never")
     assert e.deciding and e.part_cost is None
@@ -609,7 +613,18 @@ def test_parts_weigh_their_fixed_cost(monkeypatch):
     monkeypatch.setattr(splitting, "WEIGH_PART_COST", False)
     e.part_cost = (1.0, 0.0)
     assert e.part(32, 2, 1) == 2
+    # the copy trial (plain): a part of its own, TRIAL_SAMPLES long, where worth its fixed cost
+    # (the same rule; in a call's first part too, by the last deciding part's cost), else none
+    e.plain = e.copy_trial = True
+    e.mode = e.next_mode()
+    assert e.deciding and e.part(32, 0, 0) == 32
     monkeypatch.setattr(splitting, "WEIGH_PART_COST", True)
+    e.part_cost = (0.010, 0.010 / (32 * share) * 0.9)
+    assert [e.part(32, 0, 0), e.part(64, 0, 0), e.part(32, 2, 1)] == [32, 2, 30]
+    e.part_cost = None
+    assert e.part(64, 0, 0) == 64
+    e.plain = e.copy_trial = False
+    e.mode = "classic"
     monkeypatch.setattr(splitting, "KERNEL_COST", 1.0)
     it = ears(max_depth=6, split_policy="never")
     mi.render(scene, integrator=it, spp=32, seed=1)

@@ -183,7 +183,6 @@ class NEEPath(IntegratorTemplate):
         # splitting.EARS.part; a part in the plain mode runs this integrator's own kernel)
         # (a deciding part is timed: its fixed cost decides whether another part pays)
         done, k = 0, 0
-        self.ears.part_cost = None
         while done < spp:
             part = self.ears.part(spp, done, k)
             wave = splitting.Wavefront(self, self.ears, self.max_lanes)

@@ -192,9 +192,9 @@ that also counted the deeper vertices twice, so no magnitudes are quoted).
 its noise may be the first hit's light samples' (direct light: ``nee_path split=4`` lowers
 ``veach_mis``'s relMSE 3.9x for 2.8x the time), which no roulette touches and the statistics,
 the continuation's, do not see.  So its first plain pass is a copy trial: the first
-:meth:`EARS.trial_samples` of every pixel (``TRIAL_SHARE`` of the pass, at least 2) take
-``TRIAL_COPIES`` (2) copies of the first hit (its light samples and continuation, ``nee_path``'s
-``split``), the others one, and the trial's samples measure, in the image as the relMSE sees it
+:meth:`EARS.trial_samples` of every pixel (``TRIAL_SAMPLES``, 2) take ``TRIAL_COPIES`` (2)
+copies of the first hit (its light samples and continuation, ``nee_path``'s ``split``), the
+others one, and the trial's samples measure, in the image as the relMSE sees it
 (splatted with the film's filter, :meth:`EARS.measure_copies`), each pixel's variance (from the
 difference of its even and odd samples' filtered means) and the share of it the copies average
 (the filtered mean of half the difference of each camera sample's first two copies, whose
@@ -207,11 +207,13 @@ one only where that bound gains ``COPY_GAIN`` over one copy), in the cost model'
 (or classic) pass estimated it.  No trial where the copies could not gain ``COPY_GAIN`` even
 holding all of the variance (V_0 = 0: a camera sample cheap against its copy, the lamp in a
 glass shade).  The trial's lanes come first, sample-major (:meth:`Wavefront.trial_layout`), so a
-SIMD packet takes one count of copies.  Where a part of a call went plain the trial is the call's
-next part and the rest of the call takes the copies chosen; a call that starts with it is one
-part (:meth:`EARS.part`).  (Before 2026-12-07 the trial was a whole pass, or the first part of a
-call, of two copies: the Cornell box's 4-spp trial call took 32 ms against ``nee_path``'s 15 ms,
-``many_lights``'s 32-spp one 123 ms against 84 ms, and a trial part cost its own trace.)  The
+SIMD packet takes one count of copies.  Where it is worth a part's fixed cost the trial is a part
+of its own and the rest of the call takes the copies chosen; else it shares its part with the
+rest of the call (:meth:`EARS.part`).  (Before 2026-12-07 the trial was a whole pass, or the
+first part of a call, of two copies: the Cornell box's 4-spp trial call took 32 ms against
+``nee_path``'s 15 ms, ``many_lights``'s 32-spp one 123 ms against 84 ms, and a trial part cost
+its own trace; then, until later that day, an eighth of its call, or a sixteenth as a part
+of its own: 150 ms of ``many_lights``'s single 512-spp call.)  The
 count and the weight 1/k are opaque in the kernel (one kernel for every k).  Measured:
 ``veach_mis`` 1.08-1.20x ``nee_path``'s efficiency with 4 copies chosen (0.83-0.94x with one),
 the other plain-fallback scenes 0.75-1.05x, the trial's part 5-10 % of their 0.06-0.3 s renders
@@ -476,17 +478,19 @@ SPLIT_COST = 1.05
 #: 0.17x with the split kernel's compilation in the time)
 SPLIT_TRY = 1.15
 #: policy ``auto``: once the render goes plain, its first plain pass's trial samples
-#: (``TRIAL_SHARE``) take this many copies of the first hit (``nee_path``'s ``split``), and
+#: (``TRIAL_SAMPLES``) take this many copies of the first hit (``nee_path``'s ``split``), and
 #: measure how much of a camera sample's variance they average (:meth:`EARS.measure_copies`),
 #: so that the plain kernel's copies can be chosen: where the first hit's light samples carry
 #: the noise (direct light), 2-4 copies pay
 TRIAL_COPIES = 2
-#: the share of the copy trial's call whose samples take ``TRIAL_COPIES`` copies (the first
-#: ones of every pixel, at least two, an even count: :meth:`EARS.trial_samples`); the others
-#: take one.  A trial's cost then does not grow with its call (a whole call of two copies was
-#: 2x ``nee_path``'s time on the Cornell box; at 512 spp in 32-spp calls, ``many_lights``'s
-#: trial call was 123 ms against 84)
-TRIAL_SHARE = 1 / 8
+#: the copy trial's samples per pixel that take ``TRIAL_COPIES`` copies (the first of every
+#: pixel in its pass, an even count: :meth:`EARS.trial_samples`); the others take one.  Its
+#: cost does not grow with its call (a whole call of two copies was 2x ``nee_path``'s time on
+#: the Cornell box; at 512 spp in 32-spp calls, ``many_lights``'s trial call was 123 ms
+#: against 84; a share of the call, an eighth, or a part of the first part's size, a
+#: sixteenth, cost 150 ms of one 512-spp call's 1015 ms, ``nee_path`` 778 ms).  Its standard
+#: errors shrink with the film's pixels (:func:`copies_lower`), 0.05-0.08 at 96 px
+TRIAL_SAMPLES = 2
 #: the predicted efficiency gain over one copy from which the plain kernel takes more (the
 #: cost model reads a copy's cost relative to the camera sample's up to 2.8x low on directly
 #: lit scenes, e.g. ``veach_mis``, so the predicted gains run high: 1.7-1.8 there against
@@ -640,13 +644,10 @@ class EARS:
         self.learned_passes = 0
         #: the learned mode those passes ran in
         self.learned_mode = None
-        #: the last part of the current render call (:meth:`part`): (its fixed seconds, its
-        #: kernels' running seconds per sample per pixel, i.e. per spp over the film); None
-        #: before the call's first part
+        #: the last deciding part (:meth:`part`; of an earlier call where a call's first part
+        #: asks): (its fixed seconds, its kernels' running seconds per sample per pixel, i.e.
+        #: per spp over the film); None before any
         self.part_cost = None
-        #: whether the part :meth:`part` last gave is a copy trial's part of its own (every
-        #: sample a trial sample)
-        self.trial_part = False
 
     # ---- per-pixel state -----------------------------------------------------------------
     def film(self, shape, view=None):
@@ -689,26 +690,28 @@ class EARS:
         that saves at most the share 1 - 1 / ``KERNEL_COST`` of the learned kernel's running
         time, so where that saving on the samples left is less, the rest is one part, and its
         estimate decides the next call's mode.  The copy trial (plain, :attr:`copy_trial`) is
-        such a part where a part of the call decided the plain kernel, so that the rest of the
-        call takes the copies it chooses (one call of N spp: ``veach_mis``'s copies pay
-        1.3-1.5x): a part of the first part's size, every sample of it a trial sample
-        (:attr:`trial_part`); a call that starts with it is one part, the trial's samples a
-        share of it (an extra part's trace cost more than the copies gain on the rest of a
-        short call)."""
+        such a part, of ``TRIAL_SAMPLES``, where the same rule finds it worth its fixed cost
+        (in a call's first part, by the last deciding part's cost; without one, the call is
+        one part): so that the rest of the call takes the copies it chooses (one call of N spp:
+        ``veach_mis``'s copies pay 1.3-1.5x) in the kernel of one count of copies.  Else the
+        trial's samples are the first of a part that holds the rest of the call, in the kernel
+        of per-lane counts, whose copies loop runs every lane 15-20 % slower (an extra part's
+        trace costs more than that on a short call; the whole call at 512 spp: ``many_lights``
+        1.36x ``nee_path``'s time)."""
         left = spp - done
-        self.trial_part = False
-        if not self.deciding or k + 1 >= LEARN_PARTS or (k == 0 and self.mode == "plain"):
+        if not self.deciding or k + 1 >= LEARN_PARTS:
             return left
-        if k > 0 and WEIGH_PART_COST and self.part_cost is not None:
+        trial = self.mode == "plain"        # (deciding while plain: the copy trial)
+        weigh = WEIGH_PART_COST and self.part_cost is not None
+        if k == 0 and trial and not weigh:
+            return left
+        if (k > 0 or trial) and weigh:
             fixed, per_spp = self.part_cost
             if left * per_spp * (1.0 - 1.0 / max(KERNEL_COST, 1.0)) < fixed:
                 return left
         first = max(2, int(round(spp * FIRST_PART)))
-        trial = self.mode == "plain"
-        size = min(first if k == 0 or trial else done, left)
-        size = left if left - size < 2 else size
-        self.trial_part = trial and size < left
-        return size
+        size = min(TRIAL_SAMPLES if trial else first if k == 0 else done, left)
+        return left if left - size < 2 else size
 
     @property
     def deciding(self) -> bool:
@@ -1002,13 +1005,11 @@ class EARS:
                 return m
         return max(LEARNED_MODES, key=lambda m: self.measured[m])
 
-    def trial_samples(self, spp: int) -> int:
-        """The copy trial's samples per pixel in a pass of ``spp`` (at least 2): all of a part
-        of its own (:attr:`trial_part`), else the share ``TRIAL_SHARE`` of it, at least two,
-        an even count."""
-        if self.trial_part:
-            return spp
-        return min(spp, max(2, 2 * int(round(spp * TRIAL_SHARE / 2))))
+    @staticmethod
+    def trial_samples(spp: int) -> int:
+        """The copy trial's samples per pixel in a pass of ``spp`` (at least 2):
+        ``TRIAL_SAMPLES``, or all of a shorter pass."""
+        return min(spp, TRIAL_SAMPLES)
 
     def measure_copies(self, spp: int):
         """After the copy trial's plain pass of ``spp`` samples per pixel (:attr:`copy_trial`;
