@@ -1027,9 +1027,6 @@ class EARS:
         variance given the camera samples is the image's.  Both relative (divided by I_p^2 +
         0.01), averaged over the pixels.  ``copy_var`` = (the rest, V_0; one copy's share,
         V_1): with k copies the pass's variance would be V_0 + V_1 / k."""
-        s1 = host(self.pass_s1)
-        self.pix_s1 += s1
-        self.pix_n += spp
         block = self.trial_block
         self.trial_block = None
         if self.trial_copies >= 2 and spp >= 2:
@@ -1356,9 +1353,6 @@ class Wavefront:
                                          alpha=dr.select(valid, mi.Float(1), mi.Float(0)),
                                          aovs=[], wavelengths=ray.wavelengths)
             self.stats["batches"] += 1
-            if plain and not trial:     # (nothing learned from it, its rays not counted)
-                dr.eval(block.tensor())
-                continue
             # (the pixel in the units of the paths' throughputs, whose ratio to it is w: the
             # radiance along the camera ray, without the sensor's weight, which in spectral
             # variants is the wavelength sample's importance weight, tens of times the radiance)
@@ -1369,13 +1363,14 @@ class Wavefront:
                 self.ears.trial_block.put(pos, [lum * even, even, lum * odd, odd,
                                                 mi.Float(0.0) if half is None else half],
                                           active=in_trial)
+            if plain:   # (nothing learned from it, its rays not counted; the trial's sums kept)
+                dr.eval(block.tensor(), self.ears.trial_block.tensor() if trial else None)
+                continue
             dr.scatter_reduce(dr.ReduceOp.Add, self.ears.pass_s1, lum, pixel, mode=DIRECT)
             dr.scatter_reduce(dr.ReduceOp.Add, self.ears.pass_s2, lum * lum, pixel, mode=DIRECT)
             dr.eval(block.tensor(), self.ears.pass_s1, self.ears.pass_s2, self._totals,
-                    self._pred, self.ears.pass_s2c,
-                    self.ears.trial_block.tensor() if trial else None)
-            if not plain:
-                self.stats["camera_samples"] += n
+                    self._pred, self.ears.pass_s2c)
+            self.stats["camera_samples"] += n
         self.kernel_totals()
         self.ears.lane_demand = self._demand
         return block
