@@ -212,24 +212,31 @@ def table(results, budgets, command, single=False) -> str:
           f"its budget in {how}, learning in the time.  `rays/sample`: rays traced "
           "per camera sample by `rr=adaptive` (closest-hit + shadow) in its own kernel's "
           "passes (the plain passes or parts after a fallback run `nee_path`'s kernel and "
-          "are not counted).", ""]
+          "are not counted).  `ears time`, `ears relMSE`: the two factors of its efficiency, "
+          "its median seconds and its mean relMSE over `nee_path`'s (a shortfall in time is "
+          "cost; in relMSE, where it runs `nee_path`'s kernel, the spread of a few repeats).",
+          ""]
     # (the methods that ran, in METHODS's order: the header matches the cells)
     present = [m for m in METHODS if any(m in r["methods"] for r in results.values())]
     for m in present:
         md.append(f"- `{m}`: {METHODS[m][1]}")
-    md += ["", "| scene | spp | " + " | ".join(present) + " | ears rays/sample |",
-           "|---|---:|" + "---:|" * (len(present) + 1)]
+    md += ["", "| scene | spp | " + " | ".join(present)
+           + " | ears time | ears relMSE | ears rays/sample |",
+           "|---|---:|" + "---:|" * (len(present) + 3)]
     for name, res in results.items():
         for spp in budgets:
             rows = res["methods"]
             base = rows[BASELINE][spp]["efficiency"]
             cells = [f"{rows[m][spp]['efficiency'] / base:.2f}x" if m in rows else "-"
                      for m in present]
-            st = rows.get("ears", {}).get(spp, {}).get("stats", {})
+            ours = rows.get("ears", {}).get(spp, {})
+            st = ours.get("stats", {})
             cam = st.get("camera_samples", 0)
             rays = (st.get("camera_rays", 0) + st.get("continuation_rays", 0)
                     + st.get("shadow_rays", 0)) / cam if cam else float("nan")
-            md.append(f"| {name} | {spp} | " + " | ".join(cells) + f" | {rays:.2f} |")
+            factors = [f"{ours[k] / rows[BASELINE][spp][k]:.2f}x" if ours else "-"
+                       for k in ("seconds", "relmse")]
+            md.append(f"| {name} | {spp} | " + " | ".join(cells + factors) + f" | {rays:.2f} |")
     md += ["", "Seconds and relMSE of every render: `results.json`.", "", "```", command, "```"]
     return "\n".join(md)
 

@@ -179,8 +179,8 @@ MUTANTS = [
     # a plain part within a call with its lanes inactive (its samples black, weighted as
     # rendered)
     ("ears-plain-part-inactive", _S,
-     "sample_copies(scene, sampler, ray, copies)",
-     "sample_copies(scene, sampler, ray, copies, False)",
+     "sample_copies(scene, sampler, ray, copies,",
+     "sample_copies(scene, sampler, ray, copies, False,",
      ["test_ears.py::test_plain_part_within_a_call"]),
     # the copies' difference not halved (the copies' share of the variance read 4x)
     ("ears-copy-half-not-halved", "integrators/plugins/nee_path.py",
@@ -229,22 +229,27 @@ MUTANTS = [
     ("ears-trial-part-unweighed", _S,
      "if (k > 0 or trial) and weigh:", "if k > 0 and weigh:",
      ["test_ears.py::test_parts_weigh_their_fixed_cost"]),
-    # the classic pass's bound on the roulette's gain taken whatever the depth (where the
-    # throughput rule ends paths, a roulette may lower the variance)
+    # a bound part whatever the depth (where the throughput rule ends paths, a roulette may
+    # lower the variance)
     ("ears-bound-any-depth", _S,
      "self.policy in (\"never\", \"auto\") and 0 <= self.max_depth <= self.rr_depth",
      "self.policy in (\"never\", \"auto\")",
-     ["test_ears.py::test_classic_pass_bounds_the_roulette_gain"]),
+     ["test_ears.py::test_bound_part_bounds_the_roulette_gain"]),
     # the bound's first cost without the first hit's light samples (the bound read high)
     ("ears-bound-first-light-left-out", _S,
-     "cost_first = mi.Float(cost)", "cost_first = mi.Float(cost) * 0.0",
-     ["test_ears.py::test_classic_pass_bounds_the_roulette_gain"]),
+     "first = dr.select(active & (first < 0.0), shadow, first)",
+     "first = dr.select(active & (first < 0.0), 0.0, first)",
+     ["test_ears.py::test_bound_part_bounds_the_roulette_gain"]),
+    # the bound part's continuation rays not counted (its bound read low)
+    ("ears-bound-rays-uncounted", _S,
+     "return cost + dr.select(active, 1.0, 0.0), first", "return cost, first",
+     ["test_ears.py::test_bound_part_bounds_the_roulette_gain"]),
     # the bound against KERNEL_COST alone (a roulette pass run where at its best it gains
     # less than BOUND_LOSS over the plain kernel)
     ("ears-bound-no-margin", _S,
      "if self.gain_bound * (1.0 - BOUND_LOSS) < KERNEL_COST:",
      "if self.gain_bound < KERNEL_COST:",
-     ["test_ears.py::test_classic_pass_bounds_the_roulette_gain"]),
+     ["test_ears.py::test_bound_part_bounds_the_roulette_gain"]),
     # the parts of a call that decide the mode all of the first part's size (the split trial
     # as small as the classic part)
     ("ears-parts-not-doubling", _S,

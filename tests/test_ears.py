@@ -633,45 +633,58 @@ def test_parts_weigh_their_fixed_cost(monkeypatch):
     assert fixed > 0.0 and per_spp > 0.0
 
 
-def test_classic_pass_bounds_the_roulette_gain(monkeypatch, fixed_parts):
+def test_bound_part_bounds_the_roulette_gain(monkeypatch, fixed_parts):
     """Where the throughput rule ends no path (max_depth <= rr_depth) a roulette only adds
-    variance, so the learned roulette gains at most the cost it saves: the classic pass's cost
-    over its cost had every path ended after the first hit's light samples
-    (``EARS.bound_gain``).  Below ``KERNEL_COST`` the render goes plain without a roulette
-    pass (``KERNEL_COST`` 10 here: every bound is below it), and also where the roulette at
-    its bound would be less than 1 / (1 - ``BOUND_LOSS``) as efficient as the plain kernel; at
-    max_depth 2 the bound's first cost is the camera rays' and the first hit's shadow rays'
-    (none later); at max_depth 8, or under policy ``always``, no bound.  Negative controls
-    (tests/mutants_ears.py): the bound taken whatever the depth; the first hit's light samples
-    left out of its cost; the bound against ``KERNEL_COST`` alone."""
+    variance, so the learned roulette gains at most the cost it saves: a render starts with a
+    ``bound`` part, the plain kernel with its paths' costs counted (``CostCounter``), whose
+    cost over its cost had every path ended after the first hit's light samples bounds the
+    gain (``EARS.bound_gain``).  Below ``KERNEL_COST`` the render goes plain without a classic
+    or roulette part (``KERNEL_COST`` 10 here: every bound is below it), and also where the
+    roulette at its bound would be less than 1 / (1 - ``BOUND_LOSS``) as efficient as the
+    plain kernel.  At max_depth 2 (in the Cornell box, every BSDF smooth) a path with a first
+    hit costs the camera ray, one shadow ray and one continuation ray, the first cost the
+    first two; the bound part's image is the plain kernel's for the same seed; at max_depth 8,
+    or under policy ``always``, no bound part.  Negative controls (tests/mutants_ears.py): the
+    bound part whatever the depth; the first hit's light samples left out of its first cost;
+    the bound against ``KERNEL_COST`` alone."""
     scene = mi.load_file(str(ROOT / "scenes" / "cornell_box.xml"), res="16")
     monkeypatch.setattr(splitting, "KERNEL_COST", 10.0)
     it = ears(max_depth=2)
     mi.render(scene, integrator=it, spp=2, seed=0)
-    e, st = it.ears, it.stats
-    assert st["shadow_rays"] > 0
-    assert np.isclose(e.pass_cost_first, splitting.CAMERA_COST * st["camera_rays"]
-                      + splitting.SHADOW_COST * st["shadow_rays"], rtol=1e-5)
-    assert e.mode == "plain" and e.gain is None and 1.0 < e.gain_bound < 10.0
-    assert np.isclose(e.gain_bound, e.cost / (e.pass_cost_first / st["camera_rays"]))
+    e, n = it.ears, 16 * 16 * 2
+    assert it.stats["parts"] == [("bound", 2)]
+    hits = e.pass_cost - e.pass_cost_first      # (a continuation ray per first hit)
+    assert 0 < hits <= n and float(hits).is_integer()
+    assert np.isclose(e.pass_cost_first, splitting.CAMERA_COST * n
+                      + splitting.SHADOW_COST * hits, rtol=1e-6)
+    assert e.mode == "plain" and e.gain is None
+    assert np.isclose(e.gain_bound, e.pass_cost / e.pass_cost_first)
     assert it.run_notes()["gain_bound"] == round(e.gain_bound, 3)
-    for depth, policy, parts in ((4, "auto", [("classic", 2), ("plain", 2), ("plain", 28)]),
-                                 (4, "never", [("classic", 2), ("plain", 30)]),
+    # (the counter changes nothing: the bound part's block is the plain kernel's)
+    sensor = scene.sensors()[0]
+    blocks = []
+    for mode in ("bound", "plain"):
+        e.mode, e.copy_trial = mode, False
+        blocks.append(np.array(splitting.Wavefront(it, e, 1 << 20).render(
+            scene, sensor, 5, 4).tensor()))
+    assert np.allclose(blocks[0], blocks[1], rtol=1e-5, atol=1e-6)
+    for depth, policy, parts in ((4, "auto", [("bound", 2), ("plain", 2), ("plain", 28)]),
+                                 (4, "never", [("bound", 2), ("plain", 30)]),
                                  (8, "auto", [("classic", 2), ("roulette", 2), ("plain", 2),
                                               ("plain", 26)]),
                                  (4, "always", [("classic", 2), ("split", 30)])):
         it = ears(max_depth=depth, split_policy=policy)
         mi.render(scene, integrator=it, spp=32, seed=1)
         assert it.stats["parts"] == parts, (depth, policy, it.stats["parts"])
-        assert (it.ears.gain_bound is None) == (parts[1][0] != "plain" or depth > 5)
-    # (the margin: plain up to KERNEL_COST / (1 - BOUND_LOSS), the roulette pass above it)
+        assert (it.ears.gain_bound is None) == (parts[0][0] != "bound")
+    # (the margin: plain up to KERNEL_COST / (1 - BOUND_LOSS), the classic part above it)
+    monkeypatch.setattr(splitting, "KERNEL_COST", 1.3)
     edge = splitting.KERNEL_COST / (1.0 - splitting.BOUND_LOSS)
     for bound, plain in ((splitting.KERNEL_COST * 1.01, True), (edge * 0.99, True),
                          (edge * 1.01, False)):
         e = splitting.EARS(scene, 0.05, 8, 5, policy="auto", max_depth=4)
         e.bound_gain(3.0 * bound, 3.0)
         assert e.plain == plain and np.isclose(e.gain_bound, bound), (bound, plain)
-
 
 def test_auto_policy_decisions(monkeypatch):
     """split_policy=auto's choice from the two estimated gains (:meth:`EARS.compare`, given

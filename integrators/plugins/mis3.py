@@ -585,6 +585,11 @@ class MIS3(IntegratorTemplate):
         return (dr.select(first, idx, where), on | record,
                 cost + dr.select(active, 1.0 + LIGHT_COST * p3, 0.0))
 
+    def path_ray(self, track, active):
+        """The path state after its roulette at a vertex (unchanged: the vertex's ray is in
+        its cost)."""
+        return track
+
     def record_path(self, track, L):
         """Statistics of a whole path (the luminance of its estimate, and its cost) in the
         cell of its first recording vertex: the variance and cost of the pixel sample."""

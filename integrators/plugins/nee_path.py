@@ -192,7 +192,9 @@ class NEEPath(IntegratorTemplate):
             with splitting.pass_clock() if clock else contextlib.nullcontext([0.0]) as seconds:
                 block = wave.render(scene, sensor, sub_seed, part, block)
             t0 = time.perf_counter()
-            if self.ears.learning and mode != "plain":
+            if mode == "bound":     # (the plain kernel, its costs bounding learning's gain)
+                self.ears.measure_bound(part)
+            elif self.ears.learning and mode != "plain":
                 self.ears.learn(part, seconds[0] if timed else 0.0)
             elif wave.trial:
                 self.ears.measure_copies(part)
@@ -223,7 +225,7 @@ class NEEPath(IntegratorTemplate):
         notes = {"rr": "adaptive", "passes": e.passes, "mode": e.mode, "settled": e.settled}
         if e.gain is not None:
             notes["estimated_gain_over_throughput_rule"] = round(float(e.gain), 3)
-        if e.gain_bound is not None:    # (a classic pass's bound on it, EARS.bound_gain)
+        if e.gain_bound is not None:    # (a bound part's bound on it, EARS.bound_gain)
             notes["gain_bound"] = round(float(e.gain_bound), 3)
         if e.split_gain is not None:
             notes["estimated_gain_of_splitting_over_roulette"] = round(float(e.split_gain), 3)
@@ -241,12 +243,13 @@ class NEEPath(IntegratorTemplate):
 
     @record_once
     @dr.syntax
-    def sample_copies(self, scene, sampler, ray, copies, active=True):
+    def sample_copies(self, scene, sampler, ray, copies, active=True, learner=None):
         """One camera sample with ``copies`` copies of the first hit's reflected light (its
         light samples and continuation), each weighted 1/copies: (L, valid, half), half the
         difference of the first two copies' luminance where copies >= 2 (whose variance given
         the camera sample is that of the mean of two copies; 0 on lanes of one copy), else
-        None.  ``copies``: a count, or one per lane (``UInt32``: the copy trial's lanes)."""
+        None.  ``copies``: a count, or one per lane (``UInt32``: the copy trial's lanes).
+        ``learner``: the paths' learner (:meth:`VertexEstimator.path`; one copy only)."""
         active = mi.Bool(active)
         ray = mi.Ray3f(ray)
         sel = self.prepare(scene)
@@ -256,7 +259,7 @@ class NEEPath(IntegratorTemplate):
         half = None
         single = isinstance(copies, int) and copies == 1
         if dr.hint(single, mode="scalar"):
-            L += self.reflected(scene, sampler, sel, ray, si, active)
+            L += self.reflected(scene, sampler, sel, ray, si, active, learner)
         else:
             acc = mi.Spectrum(0.0)
             diff = widen(mi.Float(0.0), ray.o.x)
@@ -278,8 +281,9 @@ class NEEPath(IntegratorTemplate):
             half = dr.select(count >= 2, 0.5 * diff, 0.0)
         return L, valid, half
 
-    def reflected(self, scene, sampler, sel, ray, si, active):
+    def reflected(self, scene, sampler, sel, ray, si, active, learner=None):
         """One path's estimate of the light reflected at the first hit ``si`` (its emission
-        excluded): the shared per-vertex estimator at every vertex."""
+        excluded): the shared per-vertex estimator at every vertex (``learner``: its learner,
+        :meth:`VertexEstimator.path`)."""
         vertex = self.plain_vertex if self.adaptive else self.vertex
-        return vertex.path(scene, sampler, sel, ray, si, active, self.max_depth)
+        return vertex.path(scene, sampler, sel, ray, si, active, self.max_depth, learner)

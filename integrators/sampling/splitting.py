@@ -96,7 +96,14 @@ learned (the throughput rule, records kept), ``roulette`` (the learned n clamped
 survival n where n < 1, no copies), ``split`` (the learned n, splitting at the first
 ``split_depth`` vertices) and ``plain`` (the throughput rule in the integrator's own kernel,
 once a roulette or, under ``auto``, a split pass estimated that learning does not pay; below).
-The first three
+Where the throughput rule ends no path (``max_depth`` at most ``rr_depth``; policies ``never``
+and ``auto``) a render starts with a ``bound`` part instead: the plain kernel, its paths' costs
+counted (:class:`CostCounter`), which bounds what any roulette could gain by the cost it could
+save (:meth:`EARS.bound_gain`): where that is too little the render goes plain without a
+learning pass (``veach_mis``, ``small_light``, ``many_lights``, ``sharp_glossy`` at 96 px:
+bounds 1.30-1.34; until 2026-12-07 the classic pass measured the bound, its megakernel and
+records 14 ms of ``many_lights``'s first 2-spp call of 71 ms, ``nee_path``'s 57 ms).
+The classic, roulette and split passes
 run every path of a batch in one kernel
 (:meth:`Wavefront.roulette_kernel`, Mitsuba's megakernel: the light samples' BSDF sample is
 reused for the continuation, rays are counted per lane) when only the first hit may split (the
@@ -426,15 +433,17 @@ CAMERA_COST = 2.0
 #: path in one kernel), ``split`` (the learned factors, splitting by replication at the first
 #: ``split_depth`` vertices), ``plain`` (the learned roulette measured not to pay for its
 #: kernel, :meth:`EARS.compare`: the integrator's own kernel with the throughput rule, no
-#: records, for the rest of the render).  The first and second run in
-#: Wavefront.roulette_kernel.
-MODES = ("classic", "roulette", "split", "plain")
+#: records, for the rest of the render), ``bound`` (a render's first part where the throughput
+#: rule ends no path, :attr:`EARS.bounding`: the plain kernel, its paths' costs counted,
+#: :class:`CostCounter`, to bound what learning could gain, :meth:`EARS.bound_gain`).  The
+#: classic and roulette passes run in Wavefront.roulette_kernel.
+MODES = ("bound", "classic", "roulette", "split", "plain")
 #: time per unit of work of a learning roulette pass relative to the plain kernel's (Mitsuba's
 #: megakernel, the throughput rule): its records, the factors' lookups and the pixel statistics
 #: (Veach's MIS scene, 96 px, 256 spp: 108.6 ms against 86.3 ms for 0.95x the rays).  A
 #: gain below it does not pay for learning (:meth:`EARS.compare`)
 KERNEL_COST = 1.3
-#: the most efficiency a render may give away by going plain on a classic pass's bound
+#: the most efficiency a render may give away by going plain on a bound part's bound
 #: (:meth:`EARS.bound_gain`): where the learned roulette, at its bound, would be at most
 #: 1 / (1 - BOUND_LOSS) as efficient as the plain kernel, no roulette pass is run to estimate
 #: it.  The bound is far from the gain where the bound is near ``KERNEL_COST`` (``small_light``,
@@ -578,7 +587,7 @@ class EARS:
         self.coarse = RegionGrid(scene, stats=4, resolution=COARSE, size=1 << 12)
         self.rr_min, self.split_max, self.rr_depth = float(rr_min), int(split_max), int(rr_depth)
         #: the paths' longest (-1: unlimited): where it is at most ``rr_depth`` the throughput
-        #: rule ends no path, and a classic pass bounds the learned roulette's gain
+        #: rule ends no path, and a ``bound`` part bounds the learned roulette's gain
         #: (:meth:`bound_gain`)
         self.max_depth = int(max_depth)
         self.f_var = mi.Float(np.full(self.grid.size, -1.0, np.float32))
@@ -632,7 +641,7 @@ class EARS:
         #: the efficiency measured for each mode so far (1 / (relative variance x cost) per
         #: camera sample of its last pass)
         self.policy = policy
-        self.mode = "classic"
+        self.mode = "bound" if self.bounding else "classic"
         self.measured = {}
         self.last_pass = {}
         self.forced = None
@@ -672,7 +681,7 @@ class EARS:
         self.pass_s2 = dr.zeros(mi.Float, self.shape[0] * self.shape[1])
         self.pass_cost = 0.0
         #: the pass's cost had every path ended at its first hit after the hit's light samples
-        #: (:meth:`bound_gain`; the megakernel's passes)
+        #: (:meth:`bound_gain`; ``bound`` parts)
         self.pass_cost_first = 0.0
         self.pass_s2c = dr.zeros(mi.Float, self.shape[0] * self.shape[1])
         self.pass_cost_c = 0.0
@@ -725,6 +734,8 @@ class EARS:
         while learning: 13 learned passes in three calls, not settled)."""
         if self.mode == "plain":        # (the copy trial, see part)
             return bool(self.copy_trial)
+        if self.mode == "bound":
+            return True
         if not self.recording:
             return False
         if self.mode == "classic":
@@ -736,11 +747,9 @@ class EARS:
 
     @property
     def bounding(self) -> bool:
-        """Whether the next pass measures the bound on the learned roulette's gain
-        (:meth:`bound_gain`): a classic pass that learns, of the policies that go plain
-        (``never``, ``auto``), where the throughput rule ends no path."""
-        return self.mode == "classic" and self.recording and \
-            self.policy in ("never", "auto") and 0 <= self.max_depth <= self.rr_depth
+        """Whether a render starts with a ``bound`` part (:meth:`bound_gain`): under the
+        policies that go plain (``never``, ``auto``), where the throughput rule ends no path."""
+        return self.policy in ("never", "auto") and 0 <= self.max_depth <= self.rr_depth
 
     @property
     def recording(self) -> bool:
@@ -901,8 +910,6 @@ class EARS:
                 return float(np.mean((second / spp - mean ** 2) * n_all / (n_all - 1) / ip2))
             self.compare(rel_var(s2), cost, rel_var(host(self.pass_s2c)),
                          self.pass_cost_c / max(s1.size * spp, 1))
-        if self.bounding and self.pass_cost_first > 0:
-            self.bound_gain(cost, self.pass_cost_first / max(s1.size * spp, 1))
         # each mode's last pass, its efficiency measured against the current pixel means (the
         # same denominators for every mode: a pass measured against the noisier means of an
         # early pass would read less variance)
@@ -943,13 +950,21 @@ class EARS:
         if best < KERNEL_COST:
             self.go_plain()
 
+    def measure_bound(self, spp: int):
+        """After a ``bound`` part of ``spp`` samples per pixel (its paths' costs counted by
+        :class:`CostCounter` into ``pass_cost`` and ``pass_cost_first``): the bound on what
+        learning could gain (:meth:`bound_gain`), then the plain kernel or a classic part."""
+        n = max(self.shape[0] * self.shape[1] * spp, 1)
+        self.bound_gain(self.pass_cost / n, self.pass_cost_first / n)
+        self.mode = "plain" if self.plain else "classic"
+
     def bound_gain(self, c: float, c_first: float):
-        """After a classic pass (:attr:`bounding`: the throughput rule ends no path), an upper
-        bound on the learned roulette's gain over the rule (:meth:`compare`): any roulette
-        only adds variance there (E[X^2 / q] >= E[X^2]), so the gain is at most the saving in
-        cost, ``c`` / ``c_first``, ``c`` the pass's (the rule's) cost per camera sample and
-        ``c_first`` its cost had every path ended at its first hit after the hit's light
-        samples.  Below ``KERNEL_COST`` / (1 - ``BOUND_LOSS``) no roulette pass is run to
+        """After a ``bound`` part (:attr:`bounding`: the throughput rule ends no path), an
+        upper bound on the learned roulette's gain over the rule (:meth:`compare`): any
+        roulette only adds variance there (E[X^2 / q] >= E[X^2]), so the gain is at most the
+        saving in cost, ``c`` / ``c_first``, ``c`` the part's (the rule's) cost per camera
+        sample and ``c_first`` its cost had every path ended at its first hit after the hit's
+        light samples.  Below ``KERNEL_COST`` / (1 - ``BOUND_LOSS``) no roulette pass is run to
         estimate the gain, and the render goes plain (max_depth 4, 96 px: ``sharp_glossy``'s
         bound 1.297, the roulette pass estimated 1.000; Veach's MIS scene, ``small_light``,
         ``many_lights``: bounds 1.31-1.34, estimated 1.000-1.03).  (Policy ``auto``'s split
@@ -1254,6 +1269,55 @@ def fixed_factor(n: float):
     return rule
 
 
+class CostCounter:
+    """The learner interface of :meth:`VertexEstimator.path` that learns nothing (the path
+    and its estimate unchanged) and counts what the path costs in the cost model's units, for a
+    ``bound`` part (:meth:`EARS.bound_gain`): per vertex ``shadow`` (``SHADOW_COST`` per light
+    sample) where its BSDF has a smooth lobe, and its continuation ray (1) where the path goes
+    on, as the megakernel counts them (:meth:`Wavefront.light`, :meth:`Wavefront.continuation`:
+    no ray where the roulette, or a BSDF sample of zero weight, ended the path); ``sums`` (evaluated with the pass) holds their sum
+    over the paths and the sum of the first vertices' shadow costs.  The camera rays' cost is
+    the caller's."""
+
+    def __init__(self, shadow: float):
+        self.shadow = float(shadow)
+        self.sums = dr.zeros(mi.Float, 2)
+
+    def light_probability(self, si, sampler, active):
+        # (no probability: every vertex its light samples; what the vertex's shadow rays cost)
+        smooth = active & mi.has_flag(si.bsdf().flags(), mi.BSDFFlags.Smooth)
+        return None, dr.select(smooth, self.shadow, 0.0)
+
+    def path_start(self, like):
+        # (the path's cost so far, and its first vertex's shadow cost: -1 before it)
+        return widen(mi.Float(0.0), like.x), widen(mi.Float(-1.0), like.x)
+
+    def path_vertex(self, track, shadow, p, active):
+        cost, first = track
+        first = dr.select(active & (first < 0.0), shadow, first)
+        return cost + dr.select(active, shadow, 0.0), first
+
+    def path_ray(self, track, active):
+        cost, first = track
+        return cost + dr.select(active, 1.0, 0.0), first
+
+    def record_light(self, *args):
+        pass
+
+    def record_pair(self, *args):
+        pass
+
+    def record_hit(self, *args):
+        pass
+
+    def record_path(self, track, L):
+        cost, first = track
+        zero = mi.UInt32(0)
+        dr.scatter_reduce(dr.ReduceOp.Add, self.sums, cost, zero, mode=FLUSH)
+        dr.scatter_reduce(dr.ReduceOp.Add, self.sums, dr.maximum(first, 0.0), zero + 1,
+                          mode=FLUSH)
+
+
 class Wavefront:
     """One pass of path tracing with EARS path replication, for the integrator ``integ``
     (``nee_path``: its ``vertex`` estimator, ``camera_hit``, ``max_depth``)."""
@@ -1318,7 +1382,13 @@ class Wavefront:
         self.ears.film((h, w), sensor_view(sensor))
         total = w * h * spp
         kernel = self.replicated == 0
-        plain = self.ears.mode == "plain"
+        plain = self.ears.mode in ("plain", "bound")
+        # (a bound part: the plain kernel, its paths' costs counted)
+        counter = None
+        if self.ears.mode == "bound":
+            sel = self.integ.prepare(scene)
+            counter = CostCounter(SHADOW_COST * self.integ.light_samples if sel.count > 0
+                                  else 0.0)
         # (a plain pass of the copy trial: what its trial samples measure splatted with the
         # film's filter, EARS.measure_copies; the sample border left out)
         trial = self.trial = plain and bool(self.ears.copy_trial) and spp >= 2
@@ -1344,7 +1414,8 @@ class Wavefront:
                 copies = self.ears.copies
                 if trial:
                     copies = dr.select(in_trial, self.ears.trial_copies, mi.UInt32(1))
-                L, valid, half = self.integ.sample_copies(scene, sampler, ray, copies)
+                L, valid, half = self.integ.sample_copies(scene, sampler, ray, copies,
+                                                          learner=counter)
             elif kernel:
                 L, valid = self.kernel_batch(scene, sampler, ray, pixel)
             else:
@@ -1364,7 +1435,8 @@ class Wavefront:
                                                 mi.Float(0.0) if half is None else half],
                                           active=in_trial)
             if plain:   # (nothing learned from it, its rays not counted; the trial's sums kept)
-                dr.eval(block.tensor(), self.ears.trial_block.tensor() if trial else None)
+                dr.eval(block.tensor(), self.ears.trial_block.tensor() if trial else None,
+                        None if counter is None else counter.sums)
                 continue
             dr.scatter_reduce(dr.ReduceOp.Add, self.ears.pass_s1, lum, pixel, mode=DIRECT)
             dr.scatter_reduce(dr.ReduceOp.Add, self.ears.pass_s2, lum * lum, pixel, mode=DIRECT)
@@ -1372,6 +1444,10 @@ class Wavefront:
                     self._pred, self.ears.pass_s2c)
             self.stats["camera_samples"] += n
         self.kernel_totals()
+        if counter is not None:     # (the bound part's costs, the camera rays' included)
+            rest, first = (float(x) for x in counter.sums)
+            self.ears.pass_cost = CAMERA_COST * total + rest
+            self.ears.pass_cost_first = CAMERA_COST * total + first
         self.ears.lane_demand = self._demand
         return block
 
@@ -1397,7 +1473,7 @@ class Wavefront:
         sel = integ.prepare(scene)
         n_cam = dr.width(ray)
         learn = ears.recording
-        L, valid, cost, traced, pred, cost_first = self.roulette_kernel(
+        L, valid, cost, traced, pred = self.roulette_kernel(
             scene, sel, sampler, ray, pixel, depth_limit(integ.max_depth), learn)
         if pred is not None:    # (the throughput rule's second moment and cost, estimated)
             dr.scatter_reduce(dr.ReduceOp.Add, ears.pass_s2c, pred[0], pixel, mode=DIRECT)
@@ -1409,15 +1485,12 @@ class Wavefront:
         # thread), read once the pass is done (:meth:`kernel_totals`): no reduction kernel and
         # no host synchronisation per batch; the caller's splat goes with the loop too
         if self._totals is None:
-            self._totals = (dr.zeros(mi.Float, 1), dr.zeros(mi.UInt32, 1),
-                            dr.zeros(mi.Float, 1))
+            self._totals = (dr.zeros(mi.Float, 1), dr.zeros(mi.UInt32, 1))
         zero = mi.UInt32(0)
         dr.scatter_reduce(dr.ReduceOp.Add, self._totals[0], cost, zero, mode=FLUSH)
         dr.scatter_reduce(dr.ReduceOp.Add, self._totals[1], traced, zero, mode=FLUSH)
-        dr.scatter_reduce(dr.ReduceOp.Add, self._totals[2], cost_first, zero, mode=FLUSH)
         self.stats["camera_rays"] += n_cam
         ears.pass_cost += CAMERA_COST * n_cam
-        ears.pass_cost_first += CAMERA_COST * n_cam
         self._demand = max(self._demand, 1.0)
         return L, valid
 
@@ -1426,7 +1499,6 @@ class Wavefront:
         if self._totals is None:
             return
         work, rays = float(self._totals[0][0]), int(self._totals[1][0])
-        self.ears.pass_cost_first += float(self._totals[2][0])
         self._totals = None
         if self._pred is not None:
             self.ears.pass_cost_c += float(self._pred[0])
@@ -1558,7 +1630,6 @@ class Wavefront:
         # alone), else in each of its m = floor(n + u) copies, weighted 1/m like the rest of
         # it (the others take theirs when they restart)
         L_nee, cost, pre, smooth = self.light(scene, sel, sampler, si, alive, smooth)
-        cost_first = mi.Float(cost)
         copies = mi.UInt32(dr.floor(n + sampler.next_1d()))
         w0 = split_weight(n, copies)
         if versus:      # (the roulette does not apply the copies' weight where n >= 1)
@@ -1657,7 +1728,7 @@ class Wavefront:
         pred = None
         if predict:
             pred = (Y, K)
-        return L, valid, cost, traced, pred, cost_first
+        return L, valid, cost, traced, pred
 
     @record_once
     @dr.syntax

@@ -247,7 +247,8 @@ class VertexEstimator:
         (``record_light``, ``record_hit``), so it can learn that probability per region between
         passes; it also follows the whole path (``path_start``, ``path_vertex``,
         ``record_path``: the path's estimate and cost, the variance and cost of the pixel
-        sample that a vertex's decision is one part of)."""
+        sample that a vertex's decision is one part of), and of the rays it traces on
+        (``path_ray``: the lanes whose path goes on from the vertex)."""
         ctx = mi.BSDFContext()
         limit = depth_limit(max_depth)
         L = mi.Spectrum(0.0)
@@ -275,6 +276,12 @@ class VertexEstimator:
             eta *= d.bs.eta
             depth += 1
             beta, active = self.roulette(beta, eta, depth, sampler, active)
+            # (a path whose throughput is zero adds nothing more: not traced on, as Mitsuba's
+            # own integrators stop it; before the throughput rule's first depth nothing else
+            # would)
+            active &= dr.any(mi.unpolarized_spectrum(beta) != 0)
+            if dr.hint(learn, mode="scalar"):
+                track = learner.path_ray(track, active)
             si_prev = si
             ray = si.spawn_ray(si.to_world(d.bs.wo))
             si = scene.ray_intersect(ray, active)
