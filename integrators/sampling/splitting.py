@@ -1274,9 +1274,9 @@ class CostCounter:
     ``bound`` part (:meth:`EARS.bound_gain`): per vertex ``shadow`` (``SHADOW_COST`` per light
     sample) where its BSDF has a smooth lobe, and its continuation ray (1) where the path goes
     on, as the megakernel counts them (:meth:`Wavefront.light`, :meth:`Wavefront.continuation`:
-    no ray where the roulette, or a BSDF sample of zero weight, ended the path); ``sums`` (evaluated with the pass) holds their sum
-    over the paths and the sum of the first vertices' shadow costs.  The camera rays' cost is
-    the caller's."""
+    no ray where the roulette, or a BSDF sample of zero weight, ended the path); ``sums``
+    (evaluated with the pass) holds their sum over the paths and the sum of the first
+    vertices' shadow costs.  The camera rays' cost is the caller's."""
 
     def __init__(self, shadow: float):
         self.shadow = float(shadow)
