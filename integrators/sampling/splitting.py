@@ -1385,9 +1385,7 @@ class Wavefront:
         # (a bound part: the plain kernel, its paths' costs counted)
         counter = None
         if self.ears.mode == "bound":
-            sel = self.integ.prepare(scene)
-            counter = CostCounter(SHADOW_COST * self.integ.light_samples if sel.count > 0
-                                  else 0.0)
+            counter = CostCounter(self.shadow_cost(self.integ.prepare(scene)))
         # (a plain pass of the copy trial: what its trial samples measure splatted with the
         # film's filter, EARS.measure_copies; the sample border left out)
         trial = self.trial = plain and bool(self.ears.copy_trial) and spp >= 2
@@ -1800,8 +1798,14 @@ class Wavefront:
         d = self.integ.vertex.direct(scene, sel, sampler, mi.BSDFContext(), si, bsdf, active)
         if smooth is None:
             smooth = mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
-        k = dr.select(active & smooth & (sel.count > 0), SHADOW_COST, 0.0)
+        k = dr.select(active & smooth, self.shadow_cost(sel), 0.0)
         return dr.select(active, d.L, 0.0), k, (d.bs, d.weight), smooth
+
+    def shadow_cost(self, sel) -> float:
+        """The cost of a vertex's light samples where its BSDF has a smooth lobe (the kernels'
+        and :class:`CostCounter`'s): ``SHADOW_COST`` per shadow ray, ``light_samples`` of them
+        where the scene has lights to sample, else none."""
+        return SHADOW_COST * self.integ.light_samples if sel.count > 0 else 0.0
 
     def continuation(self, scene, sel, sampler, si, beta, eta, depth, classic, limit, active,
                      pre=None, fresh=None, stay=None):
