@@ -213,8 +213,35 @@ MUTANTS = [
      ["test_ears.py::test_copy_trial_takes_the_first_samples_of_every_pixel"]),
     # the trial's samples the first n_trial lanes of the pass instead of every pixel's first
     ("ears-trial-layout-pixel-major", _S,
-     "pix = dr.select(in_trial, j % P, r // R)", "pix = dr.select(in_trial, j // R, r // R)",
+     "k = dr.select(in_trial, j % M, r // R)", "k = dr.select(in_trial, j // R, r // R)",
      ["test_ears.py::test_copy_trial_takes_the_first_samples_of_every_pixel"]),
+    # the trial's lattice every pixel of every s-th row (its other pixels in the trial)
+    ("ears-trial-lattice-rows", _S,
+     "    on[::s, ::s] = True\n", "    on[::s, :] = True\n",
+     ["test_ears.py::test_copy_trial_takes_the_first_samples_of_every_pixel"]),
+    # a lattice whatever the film's filter (a wide filter's pooling then left out)
+    ("ears-trial-lattice-any-filter", _S,
+     "lattice = trial_pixels(h, w, film.rfilter().is_box_filter())",
+     "lattice = trial_pixels(h, w)",
+     ["test_ears.py::test_copy_trial_takes_the_first_samples_of_every_pixel"]),
+    # the copy trial's gate with no variance left to the camera sample (V_0 = 0: the Cornell
+    # box's trial run for copies that cannot pay)
+    ("ears-trial-gate-v0-zero", _S,
+     "CAMERA_COST, self.rule_cost - CAMERA_COST, TRIAL_V0, 1.0, self.split_max) > 1:",
+     "CAMERA_COST, self.rule_cost - CAMERA_COST, 0.0, 1.0, self.split_max) > 1:",
+     ["test_ears.py::test_copy_trial_gate"]),
+    # the bound part's costs per camera sample whatever the trial's copies (its rule's cost
+    # and bound read high)
+    ("ears-bound-trial-per-camera-sample", _S,
+     "share = total / (total + (self.ears.trial_copies - 1) * n_trial * lattice[2])",
+     "share = 1.0",
+     ["test_ears.py::test_bound_part_bounds_the_roulette_gain"]),
+    # the trial the bound part carried left unmeasured (the plain render then runs a trial
+    # of its own)
+    ("ears-bound-trial-unmeasured", _S,
+     "        if trial and self.copy_trial:\n            self.measure_copies(spp)\n",
+     "        if False:\n            self.measure_copies(spp)\n",
+     ["test_ears.py::test_bound_part_bounds_the_roulette_gain"]),
     # the copies chosen from the trial's estimate, not its lower confidence bound
     ("ears-copies-no-bound", _S,
      "gain = (R - z * se) * (a + b) / (a + b * k)", "gain = R * (a + b) / (a + b * k)",

@@ -349,14 +349,24 @@ def test_copy_trial_takes_the_first_samples_of_every_pixel(monkeypatch):
     laid out sample-major: ``Wavefront.trial_layout``): with a box filter each pixel's trial
     block holds exactly its own trial samples, half even and half odd, and every (pixel,
     sample) is rendered once; a trial part of its own (where a part of the call went plain)
-    is ``TRIAL_SAMPLES`` long.  Negative controls (tests/mutants_ears.py): every lane in the
-    block; the trial's lanes pixel-major; the trial part the first part's size."""
+    is ``TRIAL_SAMPLES`` long.  A box-filtered film of more than four times ``TRIAL_PIXELS``
+    takes its trial on a lattice of pixels (``trial_pixels``): its block holds those pixels'
+    trial samples and no other's, every (pixel, sample) still rendered once; a wider filter's
+    trial takes every pixel.  Negative controls (tests/mutants_ears.py): every lane in the
+    block; the trial's lanes pixel-major; the trial part the first part's size; the lattice's
+    other pixels' samples in the trial's lanes."""
     import drjit as dr
     text = (ROOT / "scenes" / "cornell_box.xml").read_text()
     scene = mi.load_string(text.replace('<rfilter type="gaussian"/>', '<rfilter type="box"/>'),
                            res="16")
-    for spp, samples, n_trial in ((32, 4, 4), (2, 4, 2), (5, 2, 2), (64, 8, 8)):
+    for spp, samples, n_trial, lattice in ((32, 4, 4, 1), (2, 4, 2, 1), (5, 2, 2, 1),
+                                           (64, 8, 8, 1), (6, 2, 2, 3), (2, 2, 2, 2)):
         monkeypatch.setattr(splitting, "TRIAL_SAMPLES", samples)
+        # (a lattice of stride 2 or 3 over the 16 x 16 film)
+        monkeypatch.setattr(splitting, "TRIAL_PIXELS", 2048 if lattice == 1 else
+                            256 // lattice ** 2)
+        assert splitting.trial_stride(16, 16) == lattice
+        assert splitting.trial_stride(16, 16, box=False) == 1
         it = ears(max_depth=8)
         mi.render(scene, integrator=it, spp=2, seed=0)      # (the pixels' values)
         e = it.ears
@@ -367,16 +377,34 @@ def test_copy_trial_takes_the_first_samples_of_every_pixel(monkeypatch):
         e.measure_copies = lambda s: (blocks.append(np.array(e.trial_block.tensor())),
                                       measure(s))
         mi.render(scene, integrator=it, spp=spp, seed=1)
-        t = blocks[0].reshape(-1, 5)
-        assert np.allclose(t[:, 1], n_trial / 2) and np.allclose(t[:, 3], n_trial / 2)
+        t = blocks[0].reshape(16, 16, 5)
+        mine = np.zeros((16, 16), bool)
+        mine[::lattice, ::lattice] = True
+        assert np.allclose(t[mine][:, (1, 3)], n_trial / 2) and np.all(t[~mine] == 0)
+        pixels, others, m = splitting.trial_pixels(16, 16)
+        assert m == mine.sum() and (others is None) == (lattice == 1)
         idx, on = splitting.Wavefront.trial_layout(dr.arange(mi.UInt32, 256 * spp), 256, spp,
-                                                   n_trial)
+                                                   n_trial, pixels, others)
         idx, on = np.array(idx), np.array(on)
         assert np.array_equal(np.sort(idx), np.arange(256 * spp))
         assert np.array_equal(np.sort(idx[on]), np.sort(
-            (np.arange(256)[:, None] * spp + np.arange(n_trial)).ravel()))
+            (np.flatnonzero(mine)[:, None] * spp + np.arange(n_trial)).ravel()))
+        assert np.all(on[:m * n_trial]) and not np.any(on[m * n_trial:])
+    # a Gaussian filter: no lattice (the trial's filter weights summed: every pixel's samples)
+    gauss = mi.load_file(str(ROOT / "scenes" / "cornell_box.xml"), res="16")
+    it = ears(max_depth=8)
+    mi.render(gauss, integrator=it, spp=2, seed=0)
+    e = it.ears
+    e.plain, e.rule_cost = True, 6.0
+    e.mode, e.copy_trial = e.next_mode(), True
+    blocks, measure = [], e.measure_copies
+    e.measure_copies = lambda s: (blocks.append(np.array(e.trial_block.tensor())), measure(s))
+    mi.render(gauss, integrator=it, spp=2, seed=1)
+    t = blocks[0].reshape(-1, 5)
+    assert t[:, 1].sum() + t[:, 3].sum() > 0.7 * 2 * 256
     # a trial part of its own (a part of the call went plain): TRIAL_SAMPLES, all trial samples
     monkeypatch.setattr(splitting, "TRIAL_SAMPLES", 2)
+    monkeypatch.setattr(splitting, "TRIAL_PIXELS", 2048)
     monkeypatch.setattr(splitting, "KERNEL_COST", float("inf"))
     monkeypatch.setattr(splitting, "COPY_GAIN", 1.0)
     monkeypatch.setattr(splitting, "WEIGH_PART_COST", False)
@@ -391,6 +419,24 @@ def test_copy_trial_takes_the_first_samples_of_every_pixel(monkeypatch):
     assert it.stats["parts"] == [("classic", 4), ("roulette", 4), ("plain", 2), ("plain", 54)]
     t = blocks[0].reshape(-1, 5)
     assert np.allclose(t[:, 1], 1.0) and np.allclose(t[:, 3], 1.0)
+
+
+def test_copy_trial_gate():
+    """Going plain under policy ``auto`` (``EARS.go_plain``), the copy trial is run only where
+    copies could gain ``COPY_GAIN`` holding all of the variance but ``TRIAL_V0`` V_1: a copy
+    cheap against the camera sample (b / a 0.5, as Veach's MIS scene) runs it, a copy of 2.2x
+    the camera sample's cost (the Cornell box), which V_0 = 0 would let gain 1.37, does not;
+    no trial under policy ``never`` or without the rule's cost.  Negative control
+    (tests/mutants_ears.py): the gate at V_0 = 0."""
+    scene = mi.load_file(str(ROOT / "scenes" / "cornell_box.xml"), res="8")
+    a = splitting.CAMERA_COST
+    assert splitting.copies_for(a, 2.2 * a, 0.0, 1.0, 8) > 1      # (V_0 = 0: the gate open)
+    for b_a, policy, cost, trial in ((0.5, "auto", True, True), (2.2, "auto", True, False),
+                                     (0.5, "never", True, False), (0.5, "auto", False, False)):
+        e = splitting.EARS(scene, 0.05, 8, 5, policy=policy, max_depth=8)
+        e.rule_cost = a * (1.0 + b_a) if cost else None
+        e.go_plain()
+        assert e.plain and e.copy_trial == trial, (b_a, policy, cost)
 
 
 def test_copies_for_maximises_the_predicted_efficiency():
@@ -644,9 +690,12 @@ def test_bound_part_bounds_the_roulette_gain(monkeypatch, fixed_parts):
     plain kernel.  At max_depth 2 (in the Cornell box, every BSDF smooth) a path with a first
     hit costs the camera ray, one shadow ray and one continuation ray, the first cost the
     first two; the bound part's image is the plain kernel's for the same seed; at max_depth 8,
-    or under policy ``always``, no bound part.  Negative controls (tests/mutants_ears.py): the
-    bound part whatever the depth; the first hit's light samples left out of its first cost;
-    the bound against ``KERNEL_COST`` alone."""
+    or under policy ``always``, no bound part.  Under policy ``auto`` the bound part carries
+    the copy trial (two copies on the first samples of every pixel), measured where the render
+    goes plain: no plain part of its own; the costs are per copy (a 2-spp part all trial
+    samples: the counts above, exactly).  Negative controls (tests/mutants_ears.py): the bound
+    part whatever the depth; the first hit's light samples left out of its first cost; the
+    bound against ``KERNEL_COST`` alone; the trial's copies counted as camera samples' costs."""
     scene = mi.load_file(str(ROOT / "scenes" / "cornell_box.xml"), res="16")
     monkeypatch.setattr(splitting, "KERNEL_COST", 10.0)
     it = ears(max_depth=2)
@@ -659,6 +708,8 @@ def test_bound_part_bounds_the_roulette_gain(monkeypatch, fixed_parts):
                       + splitting.SHADOW_COST * hits, rtol=1e-6)
     assert e.mode == "plain" and e.gain is None
     assert np.isclose(e.gain_bound, e.pass_cost / e.pass_cost_first)
+    # (the trial in the bound part, measured: the copies chosen, no trial left to run)
+    assert not e.copy_trial and e.copy_tiles is not None and e.trial_block is None
     assert it.run_notes()["gain_bound"] == round(e.gain_bound, 3)
     # (the counter changes nothing: the bound part's block is the plain kernel's)
     sensor = scene.sensors()[0]
@@ -668,10 +719,17 @@ def test_bound_part_bounds_the_roulette_gain(monkeypatch, fixed_parts):
         blocks.append(np.array(splitting.Wavefront(it, e, 1 << 20).render(
             scene, sensor, 5, 4).tensor()))
     assert np.allclose(blocks[0], blocks[1], rtol=1e-5, atol=1e-6)
-    for depth, policy, parts in ((4, "auto", [("bound", 2), ("plain", 2), ("plain", 28)]),
+    # (per copy: the same camera samples' first costs with the trial's two copies and one)
+    first = []
+    for copies in (2, 1):
+        e.mode, e.copy_trial, e.trial_copies = "bound", True, copies
+        splitting.Wavefront(it, e, 1 << 20).render(scene, sensor, 7, 2)
+        first.append(e.pass_cost_first)
+    assert first[0] == first[1] > splitting.CAMERA_COST * n
+    e.trial_copies = splitting.TRIAL_COPIES
+    for depth, policy, parts in ((4, "auto", [("bound", 2), ("plain", 30)]),
                                  (4, "never", [("bound", 2), ("plain", 30)]),
-                                 (8, "auto", [("classic", 2), ("roulette", 2), ("plain", 2),
-                                              ("plain", 26)]),
+                                 (8, "auto", [("classic", 2), ("roulette", 2), ("plain", 28)]),
                                  (4, "always", [("classic", 2), ("split", 30)])):
         it = ears(max_depth=depth, split_policy=policy)
         mi.render(scene, integrator=it, spp=32, seed=1)

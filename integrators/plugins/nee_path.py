@@ -193,7 +193,7 @@ class NEEPath(IntegratorTemplate):
                 block = wave.render(scene, sensor, sub_seed, part, block)
             t0 = time.perf_counter()
             if mode == "bound":     # (the plain kernel, its costs bounding learning's gain)
-                self.ears.measure_bound(part)
+                self.ears.measure_bound(part, wave.trial)
             elif self.ears.learning and mode != "plain":
                 self.ears.learn(part, seconds[0] if timed else 0.0)
             elif wave.trial:
@@ -249,7 +249,7 @@ class NEEPath(IntegratorTemplate):
         difference of the first two copies' luminance where copies >= 2 (whose variance given
         the camera sample is that of the mean of two copies; 0 on lanes of one copy), else
         None.  ``copies``: a count, or one per lane (``UInt32``: the copy trial's lanes).
-        ``learner``: the paths' learner (:meth:`VertexEstimator.path`; one copy only)."""
+        ``learner``: the paths' learner (:meth:`VertexEstimator.path`; every copy's path)."""
         active = mi.Bool(active)
         ray = mi.Ray3f(ray)
         sel = self.prepare(scene)
@@ -272,7 +272,7 @@ class NEEPath(IntegratorTemplate):
                 count = mi.UInt32(copies)
                 weight = roulette.split_weight(mi.Float(count))
             while dr.hint(k < count, label="nee_path split", exclude=[ray, si, active, count]):
-                r = self.reflected(scene, sampler, sel, ray, si, active)
+                r = self.reflected(scene, sampler, sel, ray, si, active, learner)
                 acc += r
                 y = luminance(r)
                 diff += dr.select(k == 0, y, dr.select(k == 1, -y, 0.0))

@@ -212,9 +212,13 @@ highest predicted efficiency 1 / ((V_0 + V_1 / k)(a + b k)) at its lower confide
 one only where that bound gains ``COPY_GAIN`` over one copy), in the cost model's units: a =
 ``CAMERA_COST``, b the rest of the throughput rule's cost per camera sample as the last roulette
 (or classic) pass estimated it.  No trial where the copies could not gain ``COPY_GAIN`` even
-holding all of the variance (V_0 = 0: a camera sample cheap against its copy, the lamp in a
-glass shade).  The trial's lanes come first, sample-major (:meth:`Wavefront.trial_layout`), so a
-SIMD packet takes one count of copies.  Where it is worth a part's fixed cost the trial is a part
+holding all of the variance but the least share any trial measured (V_0 = ``TRIAL_V0`` V_1: a
+camera sample cheap against its copy, the lamp in a glass shade, the Cornell box).  The
+trial's lanes come first, sample-major (:meth:`Wavefront.trial_layout`), so a SIMD packet
+takes one count of copies; where the film's filter is a box and the film larger than four
+times ``TRIAL_PIXELS``, its pixels are a lattice (:func:`trial_pixels`).  Where the render
+starts with a ``bound`` part (policy ``auto``), that part carries the trial
+(:meth:`EARS.measure_bound`).  Else, where it is worth a part's fixed cost, the trial is a part
 of its own and the rest of the call takes the copies chosen; else it shares its part with the
 rest of the call (:meth:`EARS.part`).  (Before 2026-12-07 the trial was a whole pass, or the
 first part of a call, of two copies: the Cornell box's 4-spp trial call took 32 ms against
@@ -500,12 +504,27 @@ TRIAL_COPIES = 2
 #: sixteenth, cost 150 ms of one 512-spp call's 1015 ms, ``nee_path`` 778 ms).  Its standard
 #: errors shrink with the film's pixels (:func:`copies_lower`), 0.05-0.08 at 96 px
 TRIAL_SAMPLES = 2
+#: the copy trial's pixels, at least, where the film's filter is a box: a film of more than
+#: four times as many takes its trial on a lattice of every s-th pixel of every s-th row, s the
+#: largest stride that leaves this many (:func:`trial_pixels`), so that the trial's cost does
+#: not grow with the film (at 96 px, s = 2: ``veach_mis`` chose its 4 copies in 10 renders of
+#: 10 either way).  A wider filter pools its neighbours' samples into a pixel, which a lattice
+#: would leave out (``many_lights``'s predicted gain of copies, 1.28-1.37 over ten trials on
+#: every pixel, read 1.51-2.49 on a lattice of stride 2): its trial takes every pixel
+TRIAL_PIXELS = 2048
 #: the predicted efficiency gain over one copy from which the plain kernel takes more (the
 #: cost model reads a copy's cost relative to the camera sample's up to 2.8x low on directly
 #: lit scenes, e.g. ``veach_mis``, so the predicted gains run high: 1.7-1.8 there against
 #: ``split=4``'s measured 1.3-1.5; ``small_light`` 0.99-1.16 and ``sharp_glossy`` 1.09-1.2,
 #: measured 0.6 and 1.0-1.1; ``cornell_box`` 1.03-1.14, measured 1.03-1.14)
 COPY_GAIN = 1.3
+#: the copies' gate (:meth:`EARS.go_plain`): a copy trial is run only where copies could gain
+#: ``COPY_GAIN`` with V_0 / V_1 this small, the least the trials measured over the fourteen
+#: scenes (``veach_mis``, 0.025-0.07; the Cornell box 0.09, ``many_lights`` 0.22,
+#: ``small_light`` 0.5).  With V_0 = 0 the Cornell box's costs (b / a 2.2) read a possible
+#: 1.37 and ran its trial, 20 ms of a 4-spp call of 50 ms (``nee_path`` 30 ms), for copies
+#: its point estimate put at 1.09-1.16 (one copy); at this share they could gain 1.22 at most
+TRIAL_V0 = 0.025
 #: the copy trial's predicted gains are taken at their lower confidence bound, this many
 #: standard errors below the estimate (:func:`copies_lower`): the trial's few samples per
 #: pixel read ``many_lights``'s gain 1.27-1.42 over ten trials (96 px, 2 trial samples per
@@ -610,8 +629,9 @@ class EARS:
         #: plain kernel (``nee_path``'s ``split``): 1, or under policy ``auto`` the count of
         #: highest predicted efficiency after the copy trial (:meth:`measure_copies`)
         self.copies = 1
-        #: policy ``auto``, plain: the copy trial (a plain pass whose first samples of every
-        #: pixel take ``trial_copies`` copies, their variance measured) still to run; what it
+        #: policy ``auto``, plain: the copy trial (a plain pass, or the bound part, whose first
+        #: samples of every pixel take ``trial_copies`` copies, their variance measured) still
+        #: to run (:meth:`measure_bound`, :meth:`go_plain`); what it
         #: measured: (the variance the copies share, one copy's share), relative, the trial's
         #: pixels' mean; and the throughput rule's cost per camera sample, as the last
         #: roulette pass (or the classic pass, :meth:`bound_gain`) estimated it
@@ -642,6 +662,8 @@ class EARS:
         #: camera sample of its last pass)
         self.policy = policy
         self.mode = "bound" if self.bounding else "classic"
+        # (policy auto: the bound part carries the copy trial, for the case it goes plain)
+        self.copy_trial = self.mode == "bound" and policy == "auto"
         self.measured = {}
         self.last_pass = {}
         self.forced = None
@@ -949,13 +971,23 @@ class EARS:
         if best < KERNEL_COST:
             self.go_plain()
 
-    def measure_bound(self, spp: int):
+    def measure_bound(self, spp: int, trial: bool = False):
         """After a ``bound`` part of ``spp`` samples per pixel (its paths' costs counted by
-        :class:`CostCounter` into ``pass_cost`` and ``pass_cost_first``): the bound on what
-        learning could gain (:meth:`bound_gain`), then the plain kernel or a classic part."""
+        :class:`CostCounter` into ``pass_cost`` and ``pass_cost_first``, per camera sample of
+        one copy): the bound on what learning could gain (:meth:`bound_gain`), then the plain
+        kernel or a classic part.  Where the part carried the copy trial (``trial``; policy
+        ``auto``) and the render goes plain with a trial to run (:meth:`go_plain`), the trial
+        is measured (:meth:`measure_copies`): no plain part of its own, no second kernel traced
+        (``small_light``, 96 px, calls of 2 spp: the trial's call of its own took 21 ms against
+        ``nee_path``'s 10; carried by the bound part, it adds 4-6 ms to that part's 17).  Else
+        its samples are the part's, their sums dropped."""
         n = max(self.shape[0] * self.shape[1] * spp, 1)
+        self.copy_trial = False
         self.bound_gain(self.pass_cost / n, self.pass_cost_first / n)
         self.mode = "plain" if self.plain else "classic"
+        if trial and self.copy_trial:
+            self.measure_copies(spp)
+        self.trial_block = None
 
     def bound_gain(self, c: float, c_first: float):
         """After a ``bound`` part (:attr:`bounding`: the throughput rule ends no path), an
@@ -983,11 +1015,11 @@ class EARS:
     def go_plain(self):
         """The learned modes found not to pay for their kernel: the rest of the render runs
         ``plain``.  Policy ``auto``: its first plain pass the copy trial, except where copies
-        could not gain ``COPY_GAIN`` even if they held all of the variance (a camera sample's
-        cost small against its copy's)."""
+        could not gain ``COPY_GAIN`` even if they held all of the variance but the share
+        ``TRIAL_V0`` (a camera sample's cost small against its copy's)."""
         self.plain = True
         if self.policy == "auto" and self.rule_cost is not None and copies_for(
-                CAMERA_COST, self.rule_cost - CAMERA_COST, 0.0, 1.0, self.split_max) > 1:
+                CAMERA_COST, self.rule_cost - CAMERA_COST, TRIAL_V0, 1.0, self.split_max) > 1:
             self.copy_trial = True
 
     def next_mode(self) -> str:
@@ -1160,6 +1192,26 @@ def copies_lower(a: float, b: float, X, Y, k_trial: int, k_max: int, z: float = 
         if gain > best_gain:
             best, best_gain = k, gain
     return best if best_gain >= COPY_GAIN else 1
+
+
+def trial_stride(h: int, w: int, box: bool = True) -> int:
+    """The stride of the copy trial's pixel lattice in an h x w layout (``TRIAL_PIXELS``;
+    ``box``: whether the film's filter is a box, else 1)."""
+    return max(1, int(np.sqrt(h * w / max(TRIAL_PIXELS, 1)))) if box else 1
+
+
+def trial_pixels(h: int, w: int, box: bool = True):
+    """The copy trial's pixels of an h x w layout (row-major indices: every
+    :func:`trial_stride`-th pixel of every such row, from the first), and the others, each in
+    order, as ``UInt32`` arrays, and the count of the first; (None, None, h w) where the trial
+    takes every pixel."""
+    s = trial_stride(h, w, box)
+    if s == 1:
+        return None, None, h * w
+    on = np.zeros((h, w), bool)
+    on[::s, ::s] = True
+    idx = np.arange(h * w, dtype=np.uint32)
+    return mi.UInt32(idx[on.ravel()]), mi.UInt32(idx[~on.ravel()]), int(on.sum())
 
 
 def tile_sums(x: np.ndarray, size: int) -> np.ndarray:
@@ -1390,9 +1442,12 @@ class Wavefront:
         # film's filter, EARS.measure_copies; the sample border left out)
         trial = self.trial = plain and bool(self.ears.copy_trial) and spp >= 2
         if trial:
+            # (not coalesced: the trial's neighbouring lanes are neighbouring pixels, whose
+            # footprints differ; small_light, 96 px, 2 spp: 1.5 ms less of a 10 ms kernel)
             self.ears.trial_block = mi.ImageBlock(film.crop_size(), film.crop_offset(), 5,
-                                                  film.rfilter())
+                                                  film.rfilter(), coalesce=False)
             n_trial = self.ears.trial_samples(spp)
+            lattice = trial_pixels(h, w, film.rfilter().is_box_filter())
         demand = min(max(self.ears.lane_demand, 2.0), 2.0 * self.ears.split_max + 1.0)
         batch = self.max_lanes if kernel else max(1, int(self.max_lanes / (1.1 * demand)))
         self._demand = 0.0
@@ -1405,7 +1460,7 @@ class Wavefront:
             # (the offset opaque: a literal would compile the kernel again for every batch)
             idx = dr.arange(mi.UInt32, n) + dr.opaque(mi.UInt32, b0)
             if trial:
-                idx, in_trial = self.trial_layout(idx, w * h, spp, n_trial)
+                idx, in_trial = self.trial_layout(idx, w * h, spp, n_trial, *lattice[:2])
             ray, weight, pos, pixel = self.camera_rays(sensor, sampler, idx, spp)
             if plain:       # (the integrator's own kernel, the throughput rule)
                 copies = self.ears.copies
@@ -1443,25 +1498,46 @@ class Wavefront:
         self.kernel_totals()
         if counter is not None:     # (the bound part's costs, the camera rays' included)
             rest, first = (float(x) for x in counter.sums)
-            self.ears.pass_cost = CAMERA_COST * total + rest
-            self.ears.pass_cost_first = CAMERA_COST * total + first
+            # (per copy: the trial's lanes ran trial_copies of the first hit's copies)
+            share = 1.0
+            if trial:
+                share = total / (total + (self.ears.trial_copies - 1) * n_trial * lattice[2])
+            self.ears.pass_cost = CAMERA_COST * total + rest * share
+            self.ears.pass_cost_first = CAMERA_COST * total + first * share
         self.ears.lane_demand = self._demand
         return block
 
     @staticmethod
-    def trial_layout(j, npix: int, spp: int, n_trial: int):
+    def trial_layout(j, npix: int, spp: int, n_trial: int, pixels=None, others=None):
         """The copy trial's lanes ``j`` (:meth:`EARS.trial_samples`): the first ``n_trial``
-        samples of every pixel, sample-major (lane j < n_trial npix: sample j // npix of pixel
-        j % npix), then the rest of each pixel's, pixel-major: a SIMD packet of neighbouring
-        lanes takes one count of copies, and waits for no other.  Returns (the sample index as
-        :meth:`camera_rays` takes it, whether the lane is a trial sample)."""
-        head = dr.opaque(mi.UInt32, n_trial * npix)
-        P = dr.opaque(mi.UInt32, npix)
+        samples of each of the trial's ``pixels`` (:func:`trial_pixels`; default every pixel),
+        sample-major (lane j < n_trial m, m pixels: sample j // m of the pixel j % m), then the
+        rest of those pixels' samples, then every sample of the ``others``, each pixel-major: a
+        SIMD packet of neighbouring lanes takes one count of copies, and waits for no other.
+        Returns (the sample index as :meth:`camera_rays` takes it, whether the lane is a trial
+        sample)."""
+        m = npix if pixels is None else dr.width(pixels)
+        head = dr.opaque(mi.UInt32, n_trial * m)
+        M = dr.opaque(mi.UInt32, m)
         R = dr.opaque(mi.UInt32, max(spp - n_trial, 1))
         in_trial = j < head
         r = dr.select(in_trial, 0, j - head)
-        pix = dr.select(in_trial, j % P, r // R)
-        s = dr.select(in_trial, j // P, dr.opaque(mi.UInt32, n_trial) + r % R)
+        # (the trial pixels' other samples: the first (spp - n_trial) m lanes after the head)
+        tail = dr.opaque(mi.UInt32, (spp - n_trial) * m)
+        mine = in_trial | (r < tail)
+        k = dr.select(in_trial, j % M, r // R)
+        s = dr.select(in_trial, j // M, dr.opaque(mi.UInt32, n_trial) + r % R)
+        if others is not None:
+            o = dr.select(mine, 0, r - tail)
+            S = dr.opaque(mi.UInt32, spp)
+            k = dr.select(mine, k, 0)
+            pix = dr.select(mine, dr.gather(mi.UInt32, pixels, k, mine),
+                            dr.gather(mi.UInt32, others, o // S, ~mine))
+            s = dr.select(mine, s, o % S)
+        elif pixels is not None:
+            pix = dr.gather(mi.UInt32, pixels, k)
+        else:
+            pix = k
         return pix * dr.opaque(mi.UInt32, spp) + s, in_trial
 
     def kernel_batch(self, scene, sampler, ray, pixel):
