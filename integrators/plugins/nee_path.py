@@ -33,10 +33,11 @@ The lecture's estimator with each degree of freedom of its last slide as a param
   roulette pass also estimates, on its own paths, the throughput rule's variance and cost;
   where the learned roulette is not worth 1.3x the plain kernel's time per unit of work, the
   render goes on with ``nee_path``'s own kernel and the throughput rule (``stats['mode']`` =
-  ``plain``, rays not counted); under ``auto`` its first plain pass takes two copies of the
-  first hit per camera sample and measures how much of the image's variance they average, and
-  the plain passes after it take the copies (``split``, up to ``split_max``) of highest
-  predicted efficiency where that is 1.3x one copy's (``stats['copies']``).  By default
+  ``plain``, rays not counted); under ``auto`` its first plain pass (or the ``bound`` part
+  that sent it plain) takes two copies of the first hit on its first two camera samples per
+  pixel and measures how much of the image's variance they average, and the plain passes
+  after it take the copies (``split``, up to ``split_max``) of highest predicted efficiency
+  where that is 1.3x one copy's (``stats['copies']``).  By default
   (``split_policy=auto``) a split pass follows a
   roulette pass that gained enough, and estimates on its first copies what the roulette would
   have given; the render splits while splitting pays, else goes on with roulette only, or
