@@ -1527,17 +1527,14 @@ class Wavefront:
         mine = in_trial | (r < tail)
         k = dr.select(in_trial, j % M, r // R)
         s = dr.select(in_trial, j // M, dr.opaque(mi.UInt32, n_trial) + r % R)
-        if others is not None:
+        pix = k
+        if pixels is not None:      # (a lattice: trial_pixels gives both lists or neither)
             o = dr.select(mine, 0, r - tail)
             S = dr.opaque(mi.UInt32, spp)
             k = dr.select(mine, k, 0)
             pix = dr.select(mine, dr.gather(mi.UInt32, pixels, k, mine),
                             dr.gather(mi.UInt32, others, o // S, ~mine))
             s = dr.select(mine, s, o % S)
-        elif pixels is not None:
-            pix = dr.gather(mi.UInt32, pixels, k)
-        else:
-            pix = k
         return pix * dr.opaque(mi.UInt32, spp) + s, in_trial
 
     def kernel_batch(self, scene, sampler, ray, pixel):
