@@ -304,4 +304,24 @@ MUTANTS = [
      "if left * per_spp * (1.0 - 1.0 / max(KERNEL_COST, 1.0)) < fixed:",
      "if left * per_spp * (1.0 - 1.0 / max(KERNEL_COST, 1.0)) < 0.0:",
      ["test_ears.py::test_parts_weigh_their_fixed_cost"]),
+    # the gain estimate's weights from the means that hold the pass's own samples
+    ("ears-gain-denominators-own-samples", _S,
+     "        if before.min() >= 1:\n", "        if False:\n",
+     ["test_ears.py::test_gain_estimate_denominators"]),
+    # the gain estimate's variances about the mean of all samples (the weights' among them)
+    ("ears-gain-variance-all-samples", _S,
+     "        if spp >= 2:\n            m = s1 / spp",
+     "        if False:\n            m = s1 / spp",
+     ["test_ears.py::test_gain_estimate_denominators"]),
+    # learning settles while the split trial is still to run
+    ("ears-settled-while-deciding", _S,
+     "            if self.gain_immature or self.split_pending:\n"
+     "                self.settled = False",
+     "            if False:\n                self.settled = False",
+     ["test_ears.py::test_no_settling_before_the_split_trial"]),
+    # the first table's estimate of the roulette's gain decides
+    ("ears-first-estimate-decides", _S,
+     "return (self.gain is not None and self.gain_passes < GAIN_PASSES",
+     "return (False and self.gain_passes < GAIN_PASSES",
+     ["test_ears.py::test_auto_policy_decisions"]),
 ]

@@ -115,10 +115,11 @@ def test_modes_tried_then_measured(fixed_parts):
 @pytest.mark.parametrize("scene_name", ["cornell_box", "ears_dark_bright"])
 def test_never_policy_roulette_only(scene_name, fixed_parts):
     """split_policy=never: the first call classic for a sixteenth of its samples, then a
-    sixteenth with the learned roulette in one kernel (no replication: no lanes held), and
-    from then on, the rest of that call included, as that roulette part compared them, the
-    learned roulette or the plain kernel with the throughput rule, which stays.  In the dark
-    scene around a bright light the learned roulette pays, in the Cornell box (light
+    sixteenth and an eighth with the learned roulette in one kernel (no replication: no lanes
+    held; the first roulette part's estimate, of the first table, does not decide: the second
+    does), and from then on, the rest of that call included, as that roulette part compared
+    them, the learned roulette or the plain kernel with the throughput rule, which stays.  In
+    the dark scene around a bright light the learned roulette pays, in the Cornell box (light
     everywhere, paths of similar worth) it does not."""
     scene = mi.load_file(str(ROOT / "scenes" / f"{scene_name}.xml"), res="16")
     it = ears(max_depth=6, split_policy="never")
@@ -129,7 +130,9 @@ def test_never_policy_roulette_only(scene_name, fixed_parts):
         modes.append((it.stats["mode"], it.stats["max_lanes"]))
         gains.append(it.ears.gain)
         if k == 0:
-            assert it.stats["parts"] == [("classic", 2), ("roulette", 2), (want, 28)], it.stats
+            assert it.stats["parts"] == [("classic", 2), ("roulette", 2), ("roulette", 4),
+                                         (want, 24)], it.stats
+            assert it.ears.gain_passes >= splitting.GAIN_PASSES
     assert modes == [(want, 0)] * 4, (modes, gains)
     assert it.ears.passes == 4
 
@@ -158,9 +161,11 @@ def test_learning_settles_then_records_nothing(monkeypatch, fixed_parts):
         settled.append(self.settled)
     monkeypatch.setattr(splitting.EARS, "learn", learn)
     mi.render(scene, integrator=it, spp=32, seed=0)
-    # (classic, roulette, the rest: settled after the second learned part)
-    assert it.stats["parts"] == [("classic", 2), ("roulette", 2), ("roulette", 28)], it.stats
-    assert settled == [False, False, True] and it.ears.mode == "roulette"
+    # (classic, two deciding roulette parts, the rest: settled after the second learned part,
+    # whose estimate decides)
+    four = [("classic", 2), ("roulette", 2), ("roulette", 4), ("roulette", 24)]
+    assert it.stats["parts"] == four, it.stats
+    assert settled == [False, False, True, True] and it.ears.mode == "roulette"
     e = it.ears
     before = [np.array(g.stats) for g in (e.grid, e.coarse)], np.array(e.grid.decisions)
     counted = e.pix_n.sum()
@@ -175,8 +180,8 @@ def test_learning_settles_then_records_nothing(monkeypatch, fixed_parts):
                                                           "height": 8}})
     other.m_to_world = scene.sensors()[0].world_transform()
     mi.render(scene, integrator=it, sensor=other, spp=32, seed=3)
-    assert it.stats["parts"] == [("classic", 2), ("roulette", 2), ("roulette", 28)], it.stats
-    assert settled[-3:] == [False, False, True]
+    assert it.stats["parts"] == four, it.stats
+    assert settled[-4:] == [False, False, True, True]
     assert not np.array_equal(before[0][0], np.array(e.grid.stats))
     # (nor are the estimated gains, from the other film's pixels, kept)
     e.split_gain = 2.0
@@ -208,7 +213,8 @@ def test_pixel_state_follows_the_view(monkeypatch, fixed_parts):
     assert it.stats["parts"] == [("roulette", 32)] and e.settled
     moved = mi.Transform4f().translate([0.05, 0.0, 0.0]) @ pose
     mi.render(scene, integrator=it, sensor=sensor(moved), spp=32, seed=3)
-    assert it.stats["parts"] == [("classic", 2), ("roulette", 2), ("roulette", 28)], it.stats
+    assert it.stats["parts"] == [("classic", 2), ("roulette", 2), ("roulette", 4),
+                                 ("roulette", 24)], it.stats
     assert e.pix_n.max() == 32
 
 
@@ -253,7 +259,8 @@ def test_plain_part_within_a_call(monkeypatch, fixed_parts):
     Mitsuba's ``path`` (Welch t per 4x4 block and channel, Sidak, at ``DEFAULT_ALPHA``;
     Cornell box, 16 px, max_depth 8, 24 renders of 256 spp each side).  Each render a fresh
     integrator, so each is rendered classic, roulette and plain (``KERNEL_COST`` infinite:
-    every roulette part goes plain), the plain part the copy trial.  Negative controls
+    the roulette part that decides goes plain, the second: ``GAIN_PASSES``), the first plain
+    part the copy trial.  Negative controls
     (tests/mutants_ears.py): the plain part's lanes inactive (its samples black); the trial's
     lanes of two copies weighted as one."""
     from integrators.testing.stats import batch_images, image_test
@@ -268,8 +275,8 @@ def test_plain_part_within_a_call(monkeypatch, fixed_parts):
         parts.append(it.stats["parts"])
     # (the plain parts: the copy trial, every sample two copies of the first hit; then the
     # copies it chose)
-    assert all(p == [("classic", 16), ("roulette", 16), ("plain", 2), ("plain", 222)]
-               for p in parts), parts
+    assert all(p == [("classic", 16), ("roulette", 16), ("roulette", 32), ("plain", 2),
+                     ("plain", 190)] for p in parts), parts
     ref = batch_images(scene, mi.load_dict({"type": "path", "max_depth": 8}), batches=24,
                        spp=256, seed0=1000)
     r = image_test(np.array(ours, np.float64), ref)
@@ -416,7 +423,8 @@ def test_copy_trial_takes_the_first_samples_of_every_pixel(monkeypatch):
     monkeypatch.setattr(splitting.EARS, "measure_copies", keep)
     it = ears(max_depth=8)
     mi.render(scene, integrator=it, spp=64, seed=2)
-    assert it.stats["parts"] == [("classic", 4), ("roulette", 4), ("plain", 2), ("plain", 54)]
+    assert it.stats["parts"] == [("classic", 4), ("roulette", 4), ("roulette", 8), ("plain", 2),
+                                 ("plain", 46)]
     t = blocks[0].reshape(-1, 5)
     assert np.allclose(t[:, 1], 1.0) and np.allclose(t[:, 3], 1.0)
 
@@ -608,14 +616,16 @@ def test_roulette_estimated_on_the_split_paths(scene_name, monkeypatch):
     assert split[:, 0].mean() > 1.05 * rl[:, 0].mean(), (split[:, 0], rl[:, 0])
 
 
-def test_auto_policy_tries_splitting_then_keeps_what_pays(fixed_parts):
-    """split_policy=auto: classic, then a roulette pass (which estimates the throughput rule),
-    then, where the roulette gains enough, a split pass (which estimates the roulette), all
-    parts of the first call; the render (the rest of that call included) goes on in the mode
-    the split pass found more efficient, or plain where neither pays.  In the room lit
-    indirectly splitting pays (the first hit's copies share the camera ray and carry most of
-    the variance); in the dark scene around a bright light splitting hardly happens and the
-    roulette is kept."""
+def test_auto_policy_tries_splitting_then_keeps_what_pays(monkeypatch, fixed_parts):
+    """split_policy=auto: classic, then two roulette passes (which estimate the throughput
+    rule; the first table's estimate does not decide), then, where the roulette gains enough
+    (here always: ``SPLIT_TRY`` 0, and no plain kernel: ``KERNEL_COST`` 0), a split pass
+    (which estimates the roulette), all parts of the first call; the render (the rest of that
+    call included) goes on in the mode the split pass estimated more efficient: splitting at
+    a gain of ``SPLIT_COST`` or more over the roulette, else the roulette.  In the dark scene
+    around a bright light splitting hardly happens and the roulette is kept."""
+    monkeypatch.setattr(splitting, "KERNEL_COST", 0.0)
+    monkeypatch.setattr(splitting, "SPLIT_TRY", 0.0)
     out = {}
     for name in ("ears_indirect_room", "ears_dark_bright"):
         scene = mi.load_file(str(ROOT / "scenes" / f"{name}.xml"), res="24")
@@ -627,15 +637,38 @@ def test_auto_policy_tries_splitting_then_keeps_what_pays(fixed_parts):
             modes.append([m for m, _ in it.stats["parts"]])
             first = first if k else it.stats["parts"]
             counts.append((it.ears.learned_passes, it.ears.settled))
+            if k == 0:
+                # (the mode the split trial's estimate chose)
+                kept = "split" if it.ears.split_gain >= splitting.SPLIT_COST else "roulette"
         out[name] = (modes, counts, it.ears.gain, it.ears.split_gain)
-        kept = "split" if name == "ears_indirect_room" else "roulette"
-        assert modes == [["classic", "roulette", "split", kept]] + [[kept]] * 3, out
-        # (the first call's parts double: 2, 2, 4, the rest)
-        assert [n for _, n in first] == [2, 2, 4, 24], first
-        # (the split trial is the first learned pass of its mode, the roulette part before it
+        assert modes[0] == ["classic", "roulette", "roulette", "split", kept], out
+        assert modes[1][0] == kept, out
+        # (the first call's parts double: 2, 2, 4, 8, the rest)
+        assert [n for _, n in first] == [2, 2, 4, 8, 16], first
+        # (the split trial is the first learned pass of its mode, the roulette parts before it
         # not counted: learning goes on after the first call)
         assert counts[0] == ((2, False) if kept == "split" else (1, False)), out
     assert it.run_notes()["estimated_gain_of_splitting_over_roulette"] < splitting.SPLIT_COST
+    assert kept == "roulette"
+
+
+def test_no_settling_before_the_split_trial(monkeypatch, fixed_parts):
+    """Learning does not settle while an estimate is still to decide: after the two roulette
+    parts the cells may hold enough copies to settle (``SETTLED_COPIES`` 0.5 here), but the
+    split trial that follows (``SPLIT_TRY`` 0; no plain kernel: ``KERNEL_COST`` 0) still records
+    and estimates splitting's gain, and decides the rest of the call.  Negative control
+    (tests/mutants_ears.py): settling whatever is pending (the split part then records nothing,
+    its gain never estimated, and renders the rest of the call)."""
+    monkeypatch.setattr(splitting, "SETTLED_COPIES", 0.5)
+    monkeypatch.setattr(splitting, "KERNEL_COST", 0.0)
+    monkeypatch.setattr(splitting, "SPLIT_TRY", 0.0)
+    scene = mi.load_file(str(ROOT / "scenes" / "ears_dark_bright.xml"), res="16")
+    it = ears()
+    mi.render(scene, integrator=it, spp=32, seed=0)
+    e = it.ears
+    modes = [m for m, _ in it.stats["parts"]]
+    assert modes[:4] == ["classic", "roulette", "roulette", "split"], it.stats["parts"]
+    assert len(modes) == 5 and e.split_gain is not None, (it.stats["parts"], e.split_gain)
 
 
 def test_parts_weigh_their_fixed_cost(monkeypatch):
@@ -729,7 +762,8 @@ def test_bound_part_bounds_the_roulette_gain(monkeypatch, fixed_parts):
     e.trial_copies = splitting.TRIAL_COPIES
     for depth, policy, parts in ((4, "auto", [("bound", 2), ("plain", 30)]),
                                  (4, "never", [("bound", 2), ("plain", 30)]),
-                                 (8, "auto", [("classic", 2), ("roulette", 2), ("plain", 28)]),
+                                 (8, "auto", [("classic", 2), ("roulette", 2), ("roulette", 4),
+                                              ("plain", 24)]),
                                  (4, "always", [("classic", 2), ("split", 30)])):
         it = ears(max_depth=depth, split_policy=policy)
         mi.render(scene, integrator=it, spp=32, seed=1)
@@ -746,18 +780,22 @@ def test_bound_part_bounds_the_roulette_gain(monkeypatch, fixed_parts):
 
 def test_auto_policy_decisions(monkeypatch):
     """split_policy=auto's choice from the two estimated gains (:meth:`EARS.compare`, given
-    relative variances and costs): a roulette gain below ``SPLIT_TRY`` goes plain at once,
-    one between it and ``KERNEL_COST`` tries splitting first; after a split pass, splitting
-    is kept at a gain of ``SPLIT_COST`` or more over the roulette, the roulette below it, and
-    plain where neither is worth ``KERNEL_COST`` over the rule (splitting's gain over the rule
-    being the product, per its kernel's time)."""
+    relative variances and costs): the first roulette pass's estimate (the first table's)
+    decides only below ``IMMATURE_GAIN`` (plain), else a second roulette pass follows; from the
+    ``GAIN_PASSES``-th on a roulette gain below ``SPLIT_TRY`` goes plain at once, one between
+    it and ``KERNEL_COST`` tries splitting first; after a split pass, splitting is kept at a
+    gain of ``SPLIT_COST`` or more over the roulette, the roulette below it, and plain where
+    neither is worth ``KERNEL_COST`` over the rule (splitting's gain over the rule being the
+    product, per its kernel's time).  Negative control (tests/mutants_ears.py): the first
+    estimate deciding."""
     scene = mi.load_file(str(ROOT / "scenes" / "cornell_box.xml"), res="8")
     it = ears(max_depth=4)
     mi.render(scene, integrator=it, spp=4, seed=0)
 
-    def decide(gain, split_gain=None):
+    def decide(gain, split_gain=None, passes=splitting.GAIN_PASSES - 1):
         e = it.ears
         e.plain, e.gain, e.split_gain, e.learned, e.mode = False, None, None, True, "roulette"
+        e.gain_passes = passes
         e.compare(1.0, 1.0, gain, 1.0)
         e.mode = e.next_mode()
         if split_gain is not None and e.mode == "split":
@@ -765,6 +803,11 @@ def test_auto_policy_decisions(monkeypatch):
             e.mode = e.next_mode()
         return e.mode
     lo = (splitting.SPLIT_TRY + splitting.KERNEL_COST) / 2
+    # (the first estimate: a second roulette pass, deciding, unless below IMMATURE_GAIN)
+    assert decide(0.95 * splitting.IMMATURE_GAIN, passes=0) == "plain"
+    for gain in (splitting.IMMATURE_GAIN, 0.95 * splitting.SPLIT_TRY, lo, 2.0):
+        assert decide(gain, passes=0) == "roulette" and it.ears.deciding, gain
+        assert it.ears.gain_passes == 1
     assert decide(0.95 * splitting.SPLIT_TRY) == "plain"
     assert decide(lo) == "split"
     assert decide(lo, 1.3) == "split"                   # (lo 1.3 / 1.05 > KERNEL_COST)
@@ -775,6 +818,51 @@ def test_auto_policy_decisions(monkeypatch):
     monkeypatch.setattr(splitting, "KERNEL_COST", 0.0)
     assert decide(0.95 * splitting.SPLIT_TRY) == "roulette"
     assert decide(lo) == "split"
+
+
+def test_gain_estimate_denominators():
+    """The relative variances a learning pass weighs against its alternative's
+    (:meth:`EARS.relative_variances`): per pixel about the pass's own mean, divided by the
+    relMSE's denominator of the earlier passes' mean (:meth:`EARS.pass_denominators`), so that
+    neither the weights nor the variances hold the other's samples.  The formulas on given
+    sums; then on synthetic pixels of known variances (lognormal means, samples mean x E^2 / 2
+    with E exponential: E[X^2] = 6 mean^2; the alternative's second moment twice the pass's:
+    relative variances 5 and 11, ratio 2.2), 2 earlier and 2 pass samples per pixel, 4096
+    pixels, 40 independent passes: H0, the estimated ratio's mean is 2.2 (one-sample t at
+    ``DEFAULT_ALPHA``, which also bounds this check's false-failure rate).  Variances about the
+    mean of all samples read 1.89, denominators holding the pass's own samples 2.31.
+    Negative controls (tests/mutants_ears.py): the denominators of all samples; the variances
+    about all samples' mean."""
+    import scipy.stats as sst
+    from integrators.sampling.learning import relmse_denominator
+    from integrators.testing.stats import DEFAULT_ALPHA, count_check
+    scene = mi.load_file(str(ROOT / "scenes" / "cornell_box.xml"), res="8")
+    e = splitting.EARS(scene, 0.05, 8, 5, policy="auto")
+    e.film((64, 64))
+    rng = np.random.default_rng(5)
+    n0, spp = 2, 2
+    ratios = []
+    for k in range(41):
+        mu = np.exp(rng.normal(-1.0, 1.0, 64 * 64))
+        x0, x = (mu[:, None] * rng.exponential(1.0, (mu.size, n)) ** 2 / 2 for n in (n0, spp))
+        s1, s2 = x.sum(1), (x ** 2).sum(1)
+        s2c = 2.0 * s2 if k else rng.uniform(0.0, 4.0, mu.size) * s2
+        e.pix_s1, e.pix_n = x0.sum(1) + s1, np.full(mu.size, float(n0 + spp))
+        ip2 = e.pass_denominators(s1, spp)
+        v, v_c = e.relative_variances(s1, s2, s2c, spp, ip2)
+        if k == 0:      # (the formulas)
+            assert np.allclose(ip2, relmse_denominator(x0.mean(1)))
+            var = (s2 / spp - (s1 / spp) ** 2) * spp / (spp - 1)
+            assert np.isclose(v, np.mean(var / ip2), rtol=1e-12)
+            assert np.isclose(v_c - v, np.mean((s2c - s2) / spp / ip2), rtol=1e-9)
+            continue
+        ratios.append(v_c / v)
+    count_check(DEFAULT_ALPHA)
+    p = sst.ttest_1samp(ratios, 2.2).pvalue
+    assert p >= DEFAULT_ALPHA, (np.mean(ratios), np.std(ratios), p)
+    # (a film's first pass has no earlier samples: all samples' means)
+    e.pix_s1, e.pix_n = s1, np.full(mu.size, float(spp))
+    assert np.allclose(e.pass_denominators(s1, spp), relmse_denominator(s1 / spp))
 
 
 def test_closed_box_random_factors_lane_cap():
