@@ -987,7 +987,8 @@ class EARS:
         image's relative variance, :meth:`learn`) is still read against the means that hold
         the pass: with the earlier passes' means there too (the first pass's from its
         neighbouring pixels'), the young table's roulette was harsher, and the efficiency
-        relative to ``nee_path`` at 32/128/512 spp (96 px, 4 repeats, run side by side) was
+        relative to ``nee_path`` at 32/128/512 spp (96 px, 4 repeats, run side by side, both
+        with this comparison's variances then about the mean of all samples) was
         0.65/1.19/1.33x in the indirect room against 0.95/1.01/1.28x, the ajar door
         0.74/1.05/1.04x against 0.99/0.95/1.08x, the window 0.91/0.72/0.86x against
         0.87/0.85/1.01x, the heavy mesh 1.09/1.28/1.24x against 1.02/1.18/1.27x."""
@@ -1201,8 +1202,9 @@ class EARS:
     @property
     def gain_immature(self) -> bool:
         """Whether the learned roulette's last estimated gain over the throughput rule
-        (``gain``) is the first table's, at or above ``IMMATURE_GAIN``: no decision is taken
-        on it, the next pass is a roulette pass again (see ``GAIN_PASSES``)."""
+        (``gain``) is from fewer than ``GAIN_PASSES`` roulette passes and at or above
+        ``IMMATURE_GAIN``: no decision is taken on it, the next pass is a roulette pass
+        again."""
         return (self.gain is not None and self.gain_passes < GAIN_PASSES
                 and self.gain >= IMMATURE_GAIN)
 
