@@ -183,6 +183,15 @@ def test_learning_settles_then_records_nothing(monkeypatch, fixed_parts):
     assert it.stats["parts"] == four, it.stats
     assert settled[-4:] == [False, False, True, True]
     assert not np.array_equal(before[0][0], np.array(e.grid.stats))
+    # (policy always: classic, then splitting in one part, one learned pass: not settled
+    # after it, settled after the next call's)
+    it = ears(max_depth=6, split_policy="always")
+    mi.render(scene, integrator=it, spp=32, seed=4)
+    assert it.stats["parts"] == [("classic", 2), ("split", 30)], it.stats
+    assert not it.ears.settled and it.ears.learned_passes == 1
+    mi.render(scene, integrator=it, spp=32, seed=5)
+    assert it.ears.settled
+    e = it.ears
     # (nor are the estimated gains, from the other film's pixels, kept)
     e.split_gain = 2.0
     e.film((4, 4))
@@ -267,6 +276,8 @@ def test_plain_part_within_a_call(monkeypatch, fixed_parts):
     from integrators.testing.unbiased import MAX_REL_SE
     monkeypatch.setattr(splitting, "KERNEL_COST", float("inf"))
     monkeypatch.setattr(splitting, "COPY_GAIN", 1.0)    # (a copy trial whatever the costs)
+    # (a trial of 32 spp: an eighth of each render, so that its weights' bias would show)
+    monkeypatch.setattr(splitting, "TRIAL_SAMPLES", 32)
     scene = mi.load_file(str(ROOT / "scenes" / "cornell_box.xml"), res="16")
     ours, parts = [], []
     for k in range(24):
@@ -275,8 +286,8 @@ def test_plain_part_within_a_call(monkeypatch, fixed_parts):
         parts.append(it.stats["parts"])
     # (the plain parts: the copy trial, every sample two copies of the first hit; then the
     # copies it chose)
-    assert all(p == [("classic", 16), ("roulette", 16), ("roulette", 32), ("plain", 2),
-                     ("plain", 190)] for p in parts), parts
+    assert all(p == [("classic", 16), ("roulette", 16), ("roulette", 32), ("plain", 32),
+                     ("plain", 160)] for p in parts), parts
     ref = batch_images(scene, mi.load_dict({"type": "path", "max_depth": 8}), batches=24,
                        spp=256, seed0=1000)
     r = image_test(np.array(ours, np.float64), ref)
