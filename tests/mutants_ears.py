@@ -315,13 +315,13 @@ MUTANTS = [
      ["test_ears.py::test_gain_estimate_denominators"]),
     # learning settles while the split trial is still to run
     ("ears-settled-while-deciding", _S,
-     "            if self.gain_immature or self.split_pending:\n"
+     "            if self.split_pending:\n"
      "                self.settled = False",
      "            if False:\n                self.settled = False",
      ["test_ears.py::test_no_settling_before_the_split_trial"]),
-    # the first table's estimate of the roulette's gain decides
-    ("ears-first-estimate-decides", _S,
-     "return (self.gain is not None and self.gain_passes < GAIN_PASSES",
-     "return (False and self.gain_passes < GAIN_PASSES",
+    # the learned roulette estimated (and deciding) before the pixels hold MATURE_SPP samples
+    ("ears-estimate-before-mature", _S,
+     'return self.policy not in ("never", "auto") or self.pix_n.min() >= MATURE_SPP',
+     'return True',
      ["test_ears.py::test_auto_policy_decisions"]),
 ]

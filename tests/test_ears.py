@@ -114,13 +114,13 @@ def test_modes_tried_then_measured(fixed_parts):
 
 @pytest.mark.parametrize("scene_name", ["cornell_box", "ears_dark_bright"])
 def test_never_policy_roulette_only(scene_name, fixed_parts):
-    """split_policy=never: the first call classic for a sixteenth of its samples, then a
-    sixteenth and an eighth with the learned roulette in one kernel (no replication: no lanes
-    held; the first roulette part's estimate, of the first table, does not decide: the second
-    does), and from then on, the rest of that call included, as that roulette part compared
-    them, the learned roulette or the plain kernel with the throughput rule, which stays.  In
-    the dark scene around a bright light the learned roulette pays, in the Cornell box (light
-    everywhere, paths of similar worth) it does not."""
+    """split_policy=never: the first call classic for two sixteenths of its samples (until
+    the pixels hold ``MATURE_SPP``), then an eighth with the learned roulette in one kernel
+    (no replication: no lanes held), whose estimate decides, and from then on, the rest of
+    that call included, as that roulette part compared them, the learned roulette or the plain
+    kernel with the throughput rule, which stays.  In the dark scene around a bright light the
+    learned roulette pays, in the Cornell box (light everywhere, paths of similar worth) it
+    does not."""
     scene = mi.load_file(str(ROOT / "scenes" / f"{scene_name}.xml"), res="16")
     it = ears(max_depth=6, split_policy="never")
     modes, gains = [], []
@@ -130,9 +130,8 @@ def test_never_policy_roulette_only(scene_name, fixed_parts):
         modes.append((it.stats["mode"], it.stats["max_lanes"]))
         gains.append(it.ears.gain)
         if k == 0:
-            assert it.stats["parts"] == [("classic", 2), ("roulette", 2), ("roulette", 4),
+            assert it.stats["parts"] == [("classic", 2), ("classic", 2), ("roulette", 4),
                                          (want, 24)], it.stats
-            assert it.ears.gain_passes >= splitting.GAIN_PASSES
     assert modes == [(want, 0)] * 4, (modes, gains)
     assert it.ears.passes == 4
 
@@ -161,11 +160,11 @@ def test_learning_settles_then_records_nothing(monkeypatch, fixed_parts):
         settled.append(self.settled)
     monkeypatch.setattr(splitting.EARS, "learn", learn)
     mi.render(scene, integrator=it, spp=32, seed=0)
-    # (classic, two deciding roulette parts, the rest: settled after the second learned part,
-    # whose estimate decides)
-    four = [("classic", 2), ("roulette", 2), ("roulette", 4), ("roulette", 24)]
+    # (two classic parts, the deciding roulette part, the rest: settled after the second
+    # learned part)
+    four = [("classic", 2), ("classic", 2), ("roulette", 4), ("roulette", 24)]
     assert it.stats["parts"] == four, it.stats
-    assert settled == [False, False, True, True] and it.ears.mode == "roulette"
+    assert settled == [False, False, False, True] and it.ears.mode == "roulette"
     e = it.ears
     before = [np.array(g.stats) for g in (e.grid, e.coarse)], np.array(e.grid.decisions)
     counted = e.pix_n.sum()
@@ -181,7 +180,7 @@ def test_learning_settles_then_records_nothing(monkeypatch, fixed_parts):
     other.m_to_world = scene.sensors()[0].world_transform()
     mi.render(scene, integrator=it, sensor=other, spp=32, seed=3)
     assert it.stats["parts"] == four, it.stats
-    assert settled[-4:] == [False, False, True, True]
+    assert settled[-4:] == [False, False, False, True]
     assert not np.array_equal(before[0][0], np.array(e.grid.stats))
     # (policy always: classic, then splitting in one part, one learned pass: not settled
     # after it, settled after the next call's)
@@ -201,7 +200,7 @@ def test_learning_settles_then_records_nothing(monkeypatch, fixed_parts):
 def test_pixel_state_follows_the_view(monkeypatch, fixed_parts):
     """The per-pixel state (the pixels' values the factors are relative to, and with it the
     settling) belongs to one view: a second sensor with a film of the same size and the same
-    pose keeps it, one moved starts again from a classic pass (the regions' statistics, in
+    pose keeps it, one moved starts again from classic passes (the regions' statistics, in
     world space, are kept)."""
     scene = mi.load_file(str(ROOT / "scenes" / "ears_dark_bright.xml"), res="16")
     monkeypatch.setattr(splitting, "SETTLED_COPIES", 0.5)
@@ -222,7 +221,7 @@ def test_pixel_state_follows_the_view(monkeypatch, fixed_parts):
     assert it.stats["parts"] == [("roulette", 32)] and e.settled
     moved = mi.Transform4f().translate([0.05, 0.0, 0.0]) @ pose
     mi.render(scene, integrator=it, sensor=sensor(moved), spp=32, seed=3)
-    assert it.stats["parts"] == [("classic", 2), ("roulette", 2), ("roulette", 4),
+    assert it.stats["parts"] == [("classic", 2), ("classic", 2), ("roulette", 4),
                                  ("roulette", 24)], it.stats
     assert e.pix_n.max() == 32
 
@@ -268,8 +267,8 @@ def test_plain_part_within_a_call(monkeypatch, fixed_parts):
     Mitsuba's ``path`` (Welch t per 4x4 block and channel, Sidak, at ``DEFAULT_ALPHA``;
     Cornell box, 16 px, max_depth 8, 24 renders of 256 spp each side).  Each render a fresh
     integrator, so each is rendered classic, roulette and plain (``KERNEL_COST`` infinite:
-    the roulette part that decides goes plain, the second: ``GAIN_PASSES``), the first plain
-    part the copy trial.  Negative controls
+    the roulette part, after two classic ones, goes plain), the first plain part the copy
+    trial.  Negative controls
     (tests/mutants_ears.py): the plain part's lanes inactive (its samples black); the trial's
     lanes of two copies weighted as one."""
     from integrators.testing.stats import batch_images, image_test
@@ -286,8 +285,8 @@ def test_plain_part_within_a_call(monkeypatch, fixed_parts):
         parts.append(it.stats["parts"])
     # (the plain parts: the copy trial, every sample two copies of the first hit; then the
     # copies it chose)
-    assert all(p == [("classic", 16), ("roulette", 16), ("roulette", 32), ("plain", 32),
-                     ("plain", 160)] for p in parts), parts
+    assert all(p == [("classic", 16), ("roulette", 16), ("plain", 32), ("plain", 192)]
+               for p in parts), parts
     ref = batch_images(scene, mi.load_dict({"type": "path", "max_depth": 8}), batches=24,
                        spp=256, seed0=1000)
     r = image_test(np.array(ours, np.float64), ref)
@@ -434,8 +433,7 @@ def test_copy_trial_takes_the_first_samples_of_every_pixel(monkeypatch):
     monkeypatch.setattr(splitting.EARS, "measure_copies", keep)
     it = ears(max_depth=8)
     mi.render(scene, integrator=it, spp=64, seed=2)
-    assert it.stats["parts"] == [("classic", 4), ("roulette", 4), ("roulette", 8), ("plain", 2),
-                                 ("plain", 46)]
+    assert it.stats["parts"] == [("classic", 4), ("roulette", 4), ("plain", 2), ("plain", 54)]
     t = blocks[0].reshape(-1, 5)
     assert np.allclose(t[:, 1], 1.0) and np.allclose(t[:, 3], 1.0)
 
@@ -628,8 +626,8 @@ def test_roulette_estimated_on_the_split_paths(scene_name, monkeypatch):
 
 
 def test_auto_policy_tries_splitting_then_keeps_what_pays(monkeypatch, fixed_parts):
-    """split_policy=auto: classic, then two roulette passes (which estimate the throughput
-    rule; the first table's estimate does not decide), then, where the roulette gains enough
+    """split_policy=auto: classic until the pixels hold ``MATURE_SPP`` samples, then a
+    roulette pass (which estimates the throughput rule), then, where the roulette gains enough
     (here always: ``SPLIT_TRY`` 0, and no plain kernel: ``KERNEL_COST`` 0), a split pass
     (which estimates the roulette), all parts of the first call; the render (the rest of that
     call included) goes on in the mode the split pass estimated more efficient: splitting at
@@ -652,11 +650,11 @@ def test_auto_policy_tries_splitting_then_keeps_what_pays(monkeypatch, fixed_par
                 # (the mode the split trial's estimate chose)
                 kept = "split" if it.ears.split_gain >= splitting.SPLIT_COST else "roulette"
         out[name] = (modes, counts, it.ears.gain, it.ears.split_gain)
-        assert modes[0] == ["classic", "roulette", "roulette", "split", kept], out
+        assert modes[0] == ["classic", "classic", "roulette", "split", kept], out
         assert modes[1][0] == kept, out
         # (the first call's parts double: 2, 2, 4, 8, the rest)
         assert [n for _, n in first] == [2, 2, 4, 8, 16], first
-        # (the split trial is the first learned pass of its mode, the roulette parts before it
+        # (the split trial is the first learned pass of its mode, the roulette part before it
         # not counted: learning goes on after the first call)
         assert counts[0] == ((2, False) if kept == "split" else (1, False)), out
     assert it.run_notes()["estimated_gain_of_splitting_over_roulette"] < splitting.SPLIT_COST
@@ -664,13 +662,15 @@ def test_auto_policy_tries_splitting_then_keeps_what_pays(monkeypatch, fixed_par
 
 
 def test_no_settling_before_the_split_trial(monkeypatch, fixed_parts):
-    """Learning does not settle while an estimate is still to decide: after the two roulette
-    parts the cells may hold enough copies to settle (``SETTLED_COPIES`` 0.5 here), but the
-    split trial that follows (``SPLIT_TRY`` 0; no plain kernel: ``KERNEL_COST`` 0) still records
-    and estimates splitting's gain, and decides the rest of the call.  Negative control
-    (tests/mutants_ears.py): settling whatever is pending (the split part then records nothing,
-    its gain never estimated, and renders the rest of the call)."""
+    """Learning does not settle while an estimate is still to decide: after the roulette
+    part the cells may hold enough copies to settle (``SETTLED_COPIES`` 0.5 and
+    ``SETTLED_PASSES`` 1 here), but the split trial that follows (``SPLIT_TRY`` 0; no plain
+    kernel: ``KERNEL_COST`` 0) still records and estimates splitting's gain, and decides the
+    rest of the call.  Negative control (tests/mutants_ears.py): settling whatever is pending
+    (the split part then records nothing, its gain never estimated, and renders the rest of the
+    call)."""
     monkeypatch.setattr(splitting, "SETTLED_COPIES", 0.5)
+    monkeypatch.setattr(splitting, "SETTLED_PASSES", 1)
     monkeypatch.setattr(splitting, "KERNEL_COST", 0.0)
     monkeypatch.setattr(splitting, "SPLIT_TRY", 0.0)
     scene = mi.load_file(str(ROOT / "scenes" / "ears_dark_bright.xml"), res="16")
@@ -678,7 +678,7 @@ def test_no_settling_before_the_split_trial(monkeypatch, fixed_parts):
     mi.render(scene, integrator=it, spp=32, seed=0)
     e = it.ears
     modes = [m for m, _ in it.stats["parts"]]
-    assert modes[:4] == ["classic", "roulette", "roulette", "split"], it.stats["parts"]
+    assert modes[:4] == ["classic", "classic", "roulette", "split"], it.stats["parts"]
     assert len(modes) == 5 and e.split_gain is not None, (it.stats["parts"], e.split_gain)
 
 
@@ -688,9 +688,9 @@ def test_parts_weigh_their_fixed_cost(monkeypatch):
     the share 1 - 1 / KERNEL_COST a switch of kernel could save, against the last part's fixed
     seconds; the copy trial's part of its own too, in a call's first part by the last
     deciding part's cost.  The rule on given costs, then in a render where no switch saves
-    anything (KERNEL_COST 1): the classic part, then the rest in one roulette part, with the
-    part's cost measured.  Negative control (tests/mutants_ears.py): a call that starts with
-    the trial split whatever its length."""
+    anything (KERNEL_COST 1): the classic part, then the rest in one part (classic: the pixels
+    hold ``MATURE_SPP`` samples only after it), with the part's cost measured.  Negative
+    control (tests/mutants_ears.py): a call that starts with the trial split whatever its length."""
     scene = mi.load_file(str(ROOT / "scenes" / "cornell_box.xml"), res="16")
     e = splitting.EARS(scene, 0.05, 8, 5, policy="never")
     assert e.deciding and e.part_cost is None
@@ -718,7 +718,7 @@ def test_parts_weigh_their_fixed_cost(monkeypatch):
     monkeypatch.setattr(splitting, "KERNEL_COST", 1.0)
     it = ears(max_depth=6, split_policy="never")
     mi.render(scene, integrator=it, spp=32, seed=1)
-    assert it.stats["parts"] == [("classic", 2), ("roulette", 30)], it.stats
+    assert it.stats["parts"] == [("classic", 2), ("classic", 30)], it.stats
     fixed, per_spp = it.ears.part_cost
     assert fixed > 0.0 and per_spp > 0.0
 
@@ -773,7 +773,7 @@ def test_bound_part_bounds_the_roulette_gain(monkeypatch, fixed_parts):
     e.trial_copies = splitting.TRIAL_COPIES
     for depth, policy, parts in ((4, "auto", [("bound", 2), ("plain", 30)]),
                                  (4, "never", [("bound", 2), ("plain", 30)]),
-                                 (8, "auto", [("classic", 2), ("roulette", 2), ("roulette", 4),
+                                 (8, "auto", [("classic", 2), ("classic", 2), ("roulette", 4),
                                               ("plain", 24)]),
                                  (4, "always", [("classic", 2), ("split", 30)])):
         it = ears(max_depth=depth, split_policy=policy)
@@ -791,22 +791,31 @@ def test_bound_part_bounds_the_roulette_gain(monkeypatch, fixed_parts):
 
 def test_auto_policy_decisions(monkeypatch):
     """split_policy=auto's choice from the two estimated gains (:meth:`EARS.compare`, given
-    relative variances and costs): the first roulette pass's estimate (the first table's)
-    decides only below ``IMMATURE_GAIN`` (plain), else a second roulette pass follows; from the
-    ``GAIN_PASSES``-th on a roulette gain below ``SPLIT_TRY`` goes plain at once, one between
-    it and ``KERNEL_COST`` tries splitting first; after a split pass, splitting is kept at a
-    gain of ``SPLIT_COST`` or more over the roulette, the roulette below it, and plain where
-    neither is worth ``KERNEL_COST`` over the rule (splitting's gain over the rule being the
-    product, per its kernel's time).  Negative control (tests/mutants_ears.py): the first
-    estimate deciding."""
+    relative variances and costs): classic passes until the pixels hold ``MATURE_SPP``
+    samples (the factors' image variance, read from the pixels' first samples, is low; the
+    other policies learn at once), then the first roulette pass's estimate decides: a roulette
+    gain below ``SPLIT_TRY`` goes plain at once, one between it and ``KERNEL_COST`` tries
+    splitting first; after a split pass, splitting is kept at a gain of ``SPLIT_COST`` or more
+    over the roulette, the roulette below it, and plain where neither is worth
+    ``KERNEL_COST`` over the rule (splitting's gain over the rule being the product, per its
+    kernel's time).  Negative control (tests/mutants_ears.py): the learned roulette before the
+    pixels hold ``MATURE_SPP`` samples."""
     scene = mi.load_file(str(ROOT / "scenes" / "cornell_box.xml"), res="8")
     it = ears(max_depth=4)
     mi.render(scene, integrator=it, spp=4, seed=0)
+    e = it.ears
+    e.plain, e.gain, e.split_gain, e.learned = False, None, None, True
+    e.pix_n[:] = splitting.MATURE_SPP - 1
+    assert e.next_mode() == "classic" and not e.mature
+    for policy, mode in (("never", "classic"), ("always", "split"), ("measured", "roulette")):
+        e.policy = policy
+        assert e.next_mode() == mode, policy
+    e.policy = "auto"
+    e.pix_n[:] = splitting.MATURE_SPP
+    assert e.next_mode() == "roulette" and e.mature
 
-    def decide(gain, split_gain=None, passes=splitting.GAIN_PASSES - 1):
-        e = it.ears
+    def decide(gain, split_gain=None):
         e.plain, e.gain, e.split_gain, e.learned, e.mode = False, None, None, True, "roulette"
-        e.gain_passes = passes
         e.compare(1.0, 1.0, gain, 1.0)
         e.mode = e.next_mode()
         if split_gain is not None and e.mode == "split":
@@ -814,13 +823,8 @@ def test_auto_policy_decisions(monkeypatch):
             e.mode = e.next_mode()
         return e.mode
     lo = (splitting.SPLIT_TRY + splitting.KERNEL_COST) / 2
-    # (the first estimate: a second roulette pass, deciding, unless below IMMATURE_GAIN)
-    assert decide(0.95 * splitting.IMMATURE_GAIN, passes=0) == "plain"
-    for gain in (splitting.IMMATURE_GAIN, 0.95 * splitting.SPLIT_TRY, lo, 2.0):
-        assert decide(gain, passes=0) == "roulette" and it.ears.deciding, gain
-        assert it.ears.gain_passes == 1
     assert decide(0.95 * splitting.SPLIT_TRY) == "plain"
-    assert decide(lo) == "split"
+    assert decide(lo) == "split" and e.deciding
     assert decide(lo, 1.3) == "split"                   # (lo 1.3 / 1.05 > KERNEL_COST)
     assert decide(lo, 1.0) == "plain"
     assert decide(1.6, 1.0) == "roulette"

@@ -73,9 +73,9 @@ def test_every_loop_is_recorded_once(scene, capfd, config):
 
 
 def test_ears_learning_kernels_recorded_once(scene, capfd, monkeypatch):
-    """nee_path rr=adaptive's kernels as a render's passes trace them: the classic part, the
-    learning roulette passes that estimate the throughput rule (two: the first table's
-    estimate does not decide), the learning split pass that estimates the roulette
+    """nee_path rr=adaptive's kernels as a render's passes trace them: the classic parts, the
+    learning roulette pass that estimates the throughput rule, the learning split pass that
+    estimates the roulette
     (split_policy=auto, the default; its fallbacks held off so that every mode runs)."""
     from integrators.sampling import splitting
     monkeypatch.setattr(splitting, "KERNEL_COST", 0.0)
@@ -88,7 +88,7 @@ def test_ears_learning_kernels_recorded_once(scene, capfd, monkeypatch):
             dr.eval(mi.render(scene, integrator=integ, spp=8, seed=k))
             modes.extend(m for m, _ in integ.stats["parts"])
     assert _rerecorded(capfd, render) == []
-    assert modes[:4] == ["classic", "roulette", "roulette", "split"], modes
+    assert modes[:4] == ["classic", "classic", "roulette", "split"], modes
 
 
 @dr.syntax

@@ -30,23 +30,24 @@ The lecture's estimator with each degree of freedom of its last slide as a param
   pass of each and keeps the faster to a given error.  ``render`` is then
   this integrator's own (JIT variants only), the learned state is kept per scene across
   passes, and ``stats`` counts the rays it traced.  ``split`` must be 1 then.  Every learning
-  roulette pass also estimates, on its own paths, the throughput rule's variance and cost (the
-  second pass's estimate decides, the first table's reading low, unless it is below 0.8);
-  where the learned roulette is not worth 1.3x the plain kernel's time per unit of work, the
+  roulette pass also estimates, on its own paths, the throughput rule's variance and cost
+  (under ``never`` and ``auto`` the classic passes go on until the pixels hold 4 samples, whose
+  variance the factors need, and the first roulette pass's estimate decides); where the
+  learned roulette is not worth 1.3x the plain kernel's time per unit of work, the
   render goes on with ``nee_path``'s own kernel and the throughput rule (``stats['mode']`` =
   ``plain``, rays not counted); under ``auto`` its first plain pass (or the ``bound`` part
   that sent it plain) takes two copies of the first hit on its first two camera samples per
   pixel and measures how much of the image's variance they average, and the plain passes
   after it take the copies (``split``, up to ``split_max``) of highest predicted efficiency
   where that is 1.3x one copy's (``stats['copies']``).  By default
-  (``split_policy=auto``) a split pass follows the second
-  roulette pass where it gained enough, and estimates on its first copies what the roulette would
-  have given; the render splits while splitting pays, else goes on with roulette only, or
-  plain.  While it learns, a render call is rendered in parts of doubling size (1/16, 1/16,
-  1/8, 1/4 of its samples, then the rest; ``stats['parts']``), learning between them, so a
-  mode decided on one part (the plain kernel included) renders the rest of the call, where
-  the samples left are worth a part's measured fixed cost; learning stops once the regions
-  hold enough samples (``settled`` in the run record).
+  (``split_policy=auto``) a split pass follows the roulette pass where it gained enough, and
+  estimates on its first copies what the roulette would have given; the render splits while
+  splitting pays, else goes on with roulette only, or plain.  While it learns, a render call is
+  rendered in parts of doubling size (1/16, 1/16, 1/8, 1/4 of its samples, then the rest;
+  ``stats['parts']``), learning between them, so a mode decided on one part (the plain kernel
+  included) renders the rest of the call, where the samples left are worth a part's measured
+  fixed cost; learning stops once the regions hold enough samples (``settled`` in the run
+  record).
 
 With ``heuristic=power, light_selection=uniform, rr=throughput, light_samples=1, split=1`` this is
 the estimator of Mitsuba's built-in ``path`` (tested statistically on the Cornell box).

@@ -188,16 +188,17 @@ the pass's own mean and weighed by the relMSE's denominator of the *earlier* pas
 samples in the denominators, the estimate read the first roulette pass's gain 2.04 (ajar
 door) and 2.41 (indirect room) where the table's measured 0.92 and 1.44 (now read 0.85 and
 1.30), which sent light through a gap and a window to splitting (0.72-0.98x ``nee_path``'s
-efficiency).  As the first table, learned from the classic pass alone, reads lower than the
-later ones, a second roulette pass decides (``GAIN_PASSES``) unless the first estimate is
-below ``IMMATURE_GAIN``.  Measured before that change (its estimates the inflated ones; 96
-px, 512 spp, one roulette pass after the classic one; estimated efficiency of the learned
-roulette against the rule, in the cost model's units): dark scene with a bright light 2.4,
-indirect room 1.9, heavy mesh 1.5: learned; glossy scene 1.28, ``ajar_door`` 1.16, the
-Cornell box 1.11 (max_depth 8), ``many_lights`` 1.04, ``specular_box`` 1.04,
-``sharp_glossy`` 1.03, ``small_light`` 1.01, Veach's MIS scene 1.001, the caustic 0.92,
-the lamp in a glass shade 0.82 (the learned roulette worse than the rule there, as measured
-before: 0.67-0.75x): plain.  Tried
+efficiency).  The factors' V, read from the pixels' first samples, is low, and the first
+table's roulette mild: an estimate after one classic pass of 2 spp read lower than the later
+ones, so the classic passes go on until the pixels hold ``MATURE_SPP`` samples, and the first
+roulette pass's estimate then decides.  Measured before those changes (its estimates the
+inflated ones; 96 px, 512 spp, one roulette pass after the classic one; estimated efficiency of
+the learned roulette against the rule, in the cost model's units): dark scene with a bright
+light 2.4, indirect room 1.9, heavy mesh 1.5: learned; glossy scene 1.28, ``ajar_door`` 1.16,
+the Cornell box 1.11 (max_depth 8), ``many_lights`` 1.04, ``specular_box`` 1.04,
+``sharp_glossy`` 1.03, ``small_light`` 1.01, Veach's MIS scene 1.001, the caustic 0.92, the
+lamp in a glass shade 0.82 (the learned roulette worse than the rule there, as measured before:
+0.67-0.75x): plain.  Tried
 first and not kept: a first-order model (each vertex's change alone, w^2 M (1/r - 1/q) from the
 cells' moments): where most vertices change the changes compound (each vertex's copy cost holds
 its subtree's), it read the rule's cost several times too far from the learned one on long
@@ -499,20 +500,23 @@ SPLIT_COST = 1.05
 #: high often enough to split ``specular_box`` and ``sharp_glossy`` at 32 spp (0.52x and
 #: 0.17x with the split kernel's compilation in the time)
 SPLIT_TRY = 1.15
-#: the roulette passes whose estimates of the learned roulette's gain over the throughput rule
-#: (:meth:`EARS.compare`) it takes before deciding on the plain kernel or the split trial: the
-#: first pass's table is learned from the classic pass alone, and its gain reads below the
-#: later tables' (96 px, calls of 2, 2, 4, 8, 16, 16 spp, learning throughout; the estimates
-#: of the first and second roulette part, 2 spp each, and of the last pass: ajar door 0.85 /
-#: 0.90 / 1.15, window 0.84 / 1.01 / 1.20, glossy 0.99 / 1.16 / 1.24, heavy mesh 1.36 / 1.50 /
-#: 1.52, indirect room 1.30 / 1.67 / 1.85; the gains measured with the tables then frozen,
-#: 16-spp passes against ``nee_path``'s, relMSE on the reference and costs in the model's
-#: units: 1.15, 1.34, 1.29, 1.53 and 1.79)
-GAIN_PASSES = 2
-#: a first estimate below this decides at once (it would have to grow 1.6x to reach
-#: ``KERNEL_COST``): at 96 px the tables above gained 1.12-1.43x from the first estimate to the
-#: last, the indirect room's at 24 px, with fewer paths to learn from, 1.9x (0.97 to 1.87)
-IMMATURE_GAIN = 0.8
+#: policies ``never`` and ``auto``: the samples per pixel the classic passes take before the
+#: first roulette pass, whose estimate of the learned roulette's gain over the throughput rule
+#: (:meth:`EARS.compare`) decides on the plain kernel or the split trial.  The factors hold the
+#: image's relative variance V, read from the pixels' samples so far, and the first ones read it
+#: low (the young table's roulette is then mild, its paths long): after one classic pass of 2
+#: spp the first estimate read below the later ones, and as low at 256 px as at 96 px, where a
+#: cell holds a seventh of the copies (glossy scene 1.03-1.06 and 0.99-1.04): what is young is
+#: the pixels' variance, not the cells' statistics.  96 px, 3 renders each, estimates after 2
+#: spp of classic passes / after 4 (two passes of 2) / of the last pass (16 spp, after 32 of
+#: learning): window 0.82-0.84 / 0.97-0.98 / 1.17-1.19, ajar door 0.84-0.88 / 0.90-0.96 /
+#: ~1.1, glossy 0.99-1.04 / 1.10-1.17 / 1.21-1.23, indirect room 1.22-1.42 / 1.46-1.74 /
+#: 1.81-1.83, heavy mesh 1.35-1.39 / 1.46-1.49 / 1.54-1.56, dark scene 1.84-2.26 / 2.31-2.41 /
+#: 2.24-2.35 (one classic pass of 4 spp: 0.92-0.97, 0.92-0.94, 1.07-1.10, -, 1.41-1.44).
+#: Before (2026-12-07) a second roulette pass decided instead, its estimate as mature as this
+#: one's: the pass it replaces ran the young table's learned kernel at 1.7-2x the plain
+#: kernel's time per sample (window, 96 px, 2 spp: 21.5 ms against 11; a classic pass 12.7)
+MATURE_SPP = 4
 #: policy ``auto``: once the render goes plain, its first plain pass's trial samples
 #: (``TRIAL_SAMPLES``) take this many copies of the first hit (``nee_path``'s ``split``), and
 #: measure how much of a camera sample's variance they average (:meth:`EARS.measure_copies`),
@@ -639,9 +643,6 @@ class EARS:
         #: the learned roulette's efficiency relative to the throughput rule's, as estimated
         #: from the last roulette pass (:meth:`compare`)
         self.gain = None
-        #: the roulette passes that estimated ``gain`` (the first table's reads low:
-        #: ``GAIN_PASSES``)
-        self.gain_passes = 0
         #: the bound on ``gain`` that a classic pass measured where the throughput rule ends no
         #: path (:meth:`bound_gain`); None where it measured none
         self.gain_bound = None
@@ -725,7 +726,6 @@ class EARS:
             # (nor are the modes' measured passes and estimated gains this film's)
             self.last_pass, self.measured = {}, {}
             self.gain = self.split_gain = None
-            self.gain_passes = 0
         self.pass_s1 = dr.zeros(mi.Float, self.shape[0] * self.shape[1])
         self.pass_s2 = dr.zeros(mi.Float, self.shape[0] * self.shape[1])
         self.pass_cost = 0.0
@@ -790,8 +790,7 @@ class EARS:
             return True
         if self.policy == "measured":
             return any(m not in self.measured for m in LEARNED_MODES)
-        return (self.mode == "roulette" and (self.gain is None or self.gain_immature)
-                and self.policy != "always") \
+        return (self.mode == "roulette" and self.gain is None and self.policy != "always") \
             or (self.mode == "split" and self.split_gain is None and self.policy == "auto")
 
     @property
@@ -960,7 +959,7 @@ class EARS:
             self.compare(v, cost, v_c, self.pass_cost_c / max(s1.size * spp, 1))
             # (not settled while an estimate is still to decide: a settled pass records
             # nothing and estimates nothing)
-            if self.gain_immature or self.split_pending:
+            if self.split_pending:
                 self.settled = False
         # each mode's last pass, its efficiency measured against the current pixel means (the
         # same denominators for every mode: a pass measured against the noisier means of an
@@ -1047,12 +1046,7 @@ class EARS:
             best = max(self.gain, self.gain * ratio / SPLIT_COST)
         else:
             self.gain = best = ratio
-            self.gain_passes += 1
             self.rule_cost = c_c
-            # (the first table's estimate reads low: a second roulette pass decides, unless
-            # this one's is below IMMATURE_GAIN)
-            if self.gain_immature:
-                return
             if self.split_pending:      # (the fallback waits for the split pass's estimate)
                 return
         if best < KERNEL_COST:
@@ -1121,12 +1115,12 @@ class EARS:
             return "roulette" if self.policy == "never" else "split"
         if self.plain:
             return "plain"
-        if not self.learned:
+        if not self.learned or not self.mature:
             return "classic"
         if self.policy == "auto":
             # (the rule estimated first, then splitting tried where the roulette gained
             # enough, and kept while it pays)
-            if self.gain is None or self.gain_immature:
+            if self.gain is None:
                 return "roulette"
             if self.split_gain is None:
                 return "split" if self.split_pending else "roulette"
@@ -1197,16 +1191,14 @@ class EARS:
         """Policy ``auto``: splitting not tried yet, and to be tried (the last roulette pass
         estimated a gain of ``SPLIT_TRY`` or more over the throughput rule)."""
         return (self.policy == "auto" and self.split_gain is None and self.gain is not None
-                and not self.gain_immature and self.gain >= SPLIT_TRY)
+                and self.gain >= SPLIT_TRY)
 
     @property
-    def gain_immature(self) -> bool:
-        """Whether the learned roulette's last estimated gain over the throughput rule
-        (``gain``) is from fewer than ``GAIN_PASSES`` roulette passes and at or above
-        ``IMMATURE_GAIN``: no decision is taken on it, the next pass is a roulette pass
-        again."""
-        return (self.gain is not None and self.gain_passes < GAIN_PASSES
-                and self.gain >= IMMATURE_GAIN)
+    def mature(self) -> bool:
+        """Whether the learned modes may run: under the policies whose first roulette pass's
+        estimate decides (``never``, ``auto``), once the pixels hold ``MATURE_SPP`` samples
+        (classic passes until then); under the others at once."""
+        return self.policy not in ("never", "auto") or self.pix_n.min() >= MATURE_SPP
 
     @property
     def alternative(self):
