@@ -825,10 +825,10 @@ def test_auto_policy_decisions(monkeypatch):
     lo = (splitting.SPLIT_TRY + splitting.KERNEL_COST) / 2
     assert decide(0.95 * splitting.SPLIT_TRY) == "plain"
     assert decide(lo) == "split" and e.deciding
-    assert decide(lo, 1.3) == "split"                   # (lo 1.3 / 1.05 > KERNEL_COST)
+    assert decide(lo, 1.3) == "split"           # (lo 1.3 / SPLIT_COST > KERNEL_COST)
     assert decide(lo, 1.0) == "plain"
     assert decide(1.6, 1.0) == "roulette"
-    assert decide(1.6, 1.1) == "split"
+    assert decide(1.6, 1.15) == "split"
     # (without the fallback, a small gain keeps the roulette: no split trial)
     monkeypatch.setattr(splitting, "KERNEL_COST", 0.0)
     assert decide(0.95 * splitting.SPLIT_TRY) == "roulette"
