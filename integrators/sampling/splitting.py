@@ -136,7 +136,7 @@ factor at the copy's throughput where the roulette would use it at n times that 
 ratios along the copy, as for the rule).  The other copies are left out.  The ratio of the
 two efficiencies in the cost model's units (``split_gain``, in the run record) decides: the
 render splits while it is at least ``SPLIT_COST`` (a split pass's time per unit of work is
-1.09-1.25x a roulette pass's: its lanes wait for their packet's most copies), else goes on with
+1.02-1.26x a roulette pass's: its lanes wait for their packet's most copies), else goes on with
 roulette only, and plain where neither the roulette (``gain``) nor the splitting (``gain``
 ``split_gain`` / ``SPLIT_COST``) is worth ``KERNEL_COST``.  Checked against roulette passes
 with the same table (48 px, 128-spp passes after learning; estimated / measured): indirect
@@ -476,10 +476,10 @@ LEARNED_MODES = ("roulette", "split")
 POLICIES = ("never", "always", "measured", "auto")
 #: time per unit of work of a split pass relative to a roulette pass (the first hit's copies
 #: run one after another in a lane, so a SIMD packet waits for its lane of most copies; seconds
-#: per (rays, a shadow ray counting half, a camera sample two)): measured 1.09-1.25 with the
-#: same frozen table, learned under policy ``always`` (96 px, 7 alternating 64-spp passes of
-#: each mode: indirect room 1.09, ajar door 1.25, glossy 1.11, heavy mesh 1.10; splitting's
-#: measured efficiency over the roulette 1.10, 1.07, 1.10, 0.98).  Policy ``auto`` splits
+#: per (rays, a shadow ray counting half, a camera sample two)): measured 1.02-1.26 with the
+#: same frozen table, learned under policy ``always`` (``benchmarks.ears_split_cost``: 96 px,
+#: 7 alternating 64-spp passes of each mode; two runs, indirect room 1.09 / 1.26, ajar door
+#: 1.25 / 1.23, glossy 1.11 / 1.02, heavy mesh 1.10 / 1.13).  Policy ``auto`` splits
 #: while the split pass's estimated gain over the roulette is at least this.  At 1.05 (its
 #: value until 2026-12-07, measured 1.04-1.06 on lighter split tables) one call of 512 spp in
 #: the indirect room split on an estimate of 1.052 (seed 0), its rest at 1.5x the roulette's
