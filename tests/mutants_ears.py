@@ -92,11 +92,11 @@ MUTANTS = [
     # ... or, at the vertices that keep the rule in the pass (glass, mirrors, nothing learned),
     # the pass's own roulette taken for the rule's (the review's find: specular_box)
     ("ears-classic-estimate-classic-vertex-shared", _S,
-     "ok = active & (q_pass > 0) & (r > 0)",
-     "ok = active & (q_pass > 0) & (r > 0) & lnot(classic)",
+     "on = active & (q_pass > 0)",
+     "on = active & (q_pass > 0) & lnot(classic)",
      ["test_ears.py::test_throughput_rule_estimated_on_the_learned_paths"]),
     ("ears-classic-estimate-no-cross-terms", _S,
-     "lc * (bare * Q + 2.0 * S)", "lc * bare * Q",
+     "lc * (bare * Q_s + 2.0 * S_s)", "lc * bare * Q_s",
      ["test_ears.py::test_throughput_rule_estimated_on_the_learned_paths"]),
     # split_policy=auto's estimate of the learned roulette on a split pass's first copies:
     # the first hit's 1/n kept (the roulette's second moment read low), every copy counted
@@ -108,8 +108,29 @@ MUTANTS = [
      "on = first if versus else mi.Bool(True)", "on = mi.Bool(True)",
      ["test_ears.py::test_roulette_estimated_on_the_split_paths"]),
     ("ears-roulette-estimate-rule-behind", _S,
-     "alive & on, scale, raw if versus else None)", "alive & on, scale, None)",
+     "alive & on, scale, raw if use_raw else None,", "alive & on, scale, None,",
      ["test_ears.py::test_roulette_estimated_on_the_split_paths"]),
+    # the classic pass's estimate of the learned roulette (what decides under never / auto):
+    # the table's factors not used (the rule estimated: the pass itself), the table's rule
+    # vertices (glass, mirrors, null, nothing learned) taken for learned ones, the estimate
+    # not read the other way round (the rule's gain over the roulette taken for the gain)
+    ("ears-learned-estimate-rule", _S,
+     'use_raw = alt in ("roulette", "learned")', 'use_raw = alt == "roulette"',
+     ["test_ears.py::test_learned_roulette_estimated_on_the_classic_paths"]),
+    ("ears-learned-estimate-rule-vertices-learned", _S,
+     "            n_r = dr.select(classic, -1.0, n_r)\n", "",
+     ["test_ears.py::test_learned_roulette_estimated_on_the_classic_paths"]),
+    ("ears-learned-estimate-not-inverted", _S,
+     "ratios = v * c / (np.maximum(v_c, 1e-30) * c_c)",
+     "ratios = v_c * c_c / (max(v, 1e-30) * c)",
+     ["test_ears.py::test_auto_policy_decisions"]),
+    # ... read at the first scale only, not the largest; the scale not applied to the factors
+    ("ears-learned-estimate-first-scale", _S,
+     "j = int(np.argmax(ratios))", "j = 0",
+     ["test_ears.py::test_auto_policy_decisions"]),
+    ("ears-learned-estimate-unscaled", _S,
+     "dr.clip(s * raw * rho, self.rr_min, 1.0)", "dr.clip(raw * rho, self.rr_min, 1.0)",
+     ["test_ears.py::test_learned_roulette_estimated_on_the_classic_paths"]),
     # split_policy=auto: splitting kept whatever the split pass estimated; the plain fallback
     # decided before splitting was tried; splitting's gain left out of it
     ("ears-auto-split-kept-regardless", _S,

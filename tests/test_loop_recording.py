@@ -73,8 +73,8 @@ def test_every_loop_is_recorded_once(scene, capfd, config):
 
 
 def test_ears_learning_kernels_recorded_once(scene, capfd, monkeypatch):
-    """nee_path rr=adaptive's kernels as a render's passes trace them: the classic parts, the
-    learning roulette pass that estimates the throughput rule, the learning split pass that
+    """nee_path rr=adaptive's kernels as a render's passes trace them: the classic parts (the
+    second estimates the learned roulette at each of its scales), the learning roulette pass that estimates the throughput rule, the learning split pass that
     estimates the roulette
     (split_policy=auto, the default; its fallbacks held off so that every mode runs)."""
     from integrators.sampling import splitting

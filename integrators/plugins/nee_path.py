@@ -219,7 +219,9 @@ class NEEPath(IntegratorTemplate):
     def run_notes(self) -> dict:
         """For the run record (rr=adaptive): the passes, the mode they now run in and the
         learned roulette's efficiency against the throughput rule as a roulette pass estimated
-        it (what sent the render to the plain kernel, or kept it learning), and splitting's
+        it (what sent the render to the plain kernel, or kept it learning; before it, a
+        classic pass's estimate of the young table at its best scale, which may send the
+        render plain first), and splitting's
         against the roulette as a split pass estimated it (``auto``: what kept or ended it);
         in the plain mode the first hit's copies per camera sample."""
         if not self.adaptive or self.ears is None:
@@ -228,6 +230,9 @@ class NEEPath(IntegratorTemplate):
         notes = {"rr": "adaptive", "passes": e.passes, "mode": e.mode, "settled": e.settled}
         if e.gain is not None:
             notes["estimated_gain_over_throughput_rule"] = round(float(e.gain), 3)
+        if e.young_gain is not None:    # (a classic pass's, the young table's best scale)
+            notes["estimated_gain_young_table"] = {"gain": round(float(e.young_gain), 3),
+                                                   "scale": e.gain_scale}
         if e.gain_bound is not None:    # (a bound part's bound on it, EARS.bound_gain)
             notes["gain_bound"] = round(float(e.gain_bound), 3)
         if e.split_gain is not None:

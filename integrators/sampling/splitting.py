@@ -191,7 +191,14 @@ door) and 2.41 (indirect room) where the table's measured 0.92 and 1.44 (now rea
 efficiency).  The factors' V, read from the pixels' first samples, is low, and the first
 table's roulette mild: an estimate after one classic pass of 2 spp read lower than the later
 ones, so the classic passes go on until the pixels hold ``MATURE_SPP`` samples, and the first
-roulette pass's estimate then decides.  Measured before those changes (its estimates the
+roulette pass's estimate then decides.  The classic pass before it, with a table learned,
+estimates on its own paths the learned roulette with that table the other way round (the
+rule's survivals in P, the table's in Q, the rule where the table keeps it), its factors
+scaled by each of ``ROULETTE_SCALES`` (the young table is mild by the image's variance V, read
+low, a scale on every factor); where even the largest of those gains would send the render
+plain at a roulette pass's estimate, it goes plain there, without the roulette pass and its
+learned kernel (the rest of a 4-spp call at 96 px: 15-20 ms of a 32-spp render's 250-300).
+Measured before those changes (its estimates the
 inflated ones; 96 px, 512 spp, one roulette pass after the classic one; estimated efficiency of
 the learned roulette against the rule, in the cost model's units): dark scene with a bright
 light 2.4, indirect room 1.9, heavy mesh 1.5: learned; glossy scene 1.28, ``ajar_door`` 1.16,
@@ -525,6 +532,24 @@ SPLIT_TRY = 1.15
 #: one's: the pass it replaces ran the young table's learned kernel at 1.7-2x the plain
 #: kernel's time per sample (window, 96 px, 2 spp: 21.5 ms against 11; a classic pass 12.7)
 MATURE_SPP = 4
+#: policies ``never`` and ``auto``: the scales s of the learned factors (s n,
+#: :meth:`EARS.survivals`) at which a classic pass with a table learned, before the pixels
+#: hold ``MATURE_SPP`` samples, estimates the learned roulette on its own paths; where the
+#: largest of those gains (:meth:`EARS.compare`) would send the render plain at a roulette
+#: pass's estimate (below ``SPLIT_TRY``, under ``never`` below ``KERNEL_COST``), it goes
+#: plain there, without the roulette pass.  Why scales: the young table is mild by the
+#: image's variance V (n ~ 1 / sqrt(V)), read low from the pixels' first samples; at 96 px
+#: sqrt(V after 2 spp / V settled) measured 0.28 (ajar door), 0.37 (window), 0.39 (indirect
+#: room), 0.56 (glossy), 0.57 (dark scene), 0.73 (caustic), 0.86 (heavy mesh), hence 1 to 1/4
+#: in factors of two.  Unscaled the young table read below the later roulette passes (window
+#: 0.82-0.84 against 1.04-1.19, indirect room 1.22-1.42 against 1.62-1.83); the largest over
+#: the scales reads as high or higher (96 px, 3 renders each, the largest / the first
+#: roulette pass's where one ran): window 1.12-1.16 / 0.98, ajar door 1.01-1.07, caustic
+#: 0.86-0.98, ``specular_box`` 0.97-0.98, glass shade 0.74-0.75 (plain at once, the window in
+#: two renders of three), Cornell box (max_depth 8) 1.21-1.30 / 1.08-1.10, glossy 1.25-1.34 /
+#: 1.13-1.14 (plain after the roulette pass), indirect room 1.53-1.92 / 1.46-1.61, dark scene
+#: 2.90-2.93 / 2.34-2.59, heavy mesh 1.41-1.59 / 1.51-1.53 (learned, as before)
+ROULETTE_SCALES = (1.0, 0.5, 0.25)
 #: policy ``auto``: once the render goes plain, its first plain pass's trial samples
 #: (``TRIAL_SAMPLES``) take this many copies of the first hit (``nee_path``'s ``split``), and
 #: measure how much of a camera sample's variance they average (:meth:`EARS.measure_copies`),
@@ -646,8 +671,8 @@ class EARS:
         self.max_depth = int(max_depth)
         self.f_var = mi.Float(np.full(self.grid.size, -1.0, np.float32))
         self.f_var_coarse = mi.Float(np.full(self.coarse.size, -1.0, np.float32))
-        #: a roulette pass's estimate of the throughput rule's cost (``Wavefront.kernel_batch``)
-        self.pass_cost_c = 0.0
+        #: a learning pass's estimate of its alternatives' costs (``Wavefront.kernel_batch``)
+        self.pass_cost_c = np.zeros(0)
         #: the learned roulette's efficiency relative to the throughput rule's, as estimated
         #: from the last roulette pass (:meth:`compare`)
         self.gain = None
@@ -657,6 +682,11 @@ class EARS:
         #: splitting's efficiency relative to the learned roulette's, as estimated from the
         #: last learning split pass (policy ``auto``, :meth:`compare`)
         self.split_gain = None
+        #: the scale of ``ROULETTE_SCALES`` at which the classic pass's estimate of ``gain``
+        #: was largest (1 where a roulette pass estimated it)
+        self.gain_scale = None
+        #: the largest of those estimates (:meth:`compare`)
+        self.young_gain = None
         #: set once the prediction found the learned roulette not worth its kernel: the passes
         #: then run ``plain`` (the integrator's own kernel, the throughput rule, no records)
         self.plain = False
@@ -740,8 +770,10 @@ class EARS:
         #: the pass's cost had every path ended at its first hit after the hit's light samples
         #: (:meth:`bound_gain`; ``bound`` parts)
         self.pass_cost_first = 0.0
-        self.pass_s2c = dr.zeros(mi.Float, self.shape[0] * self.shape[1])
-        self.pass_cost_c = 0.0
+        #: the alternatives' (:attr:`alternative`, at each scale) per-pixel sums of their
+        #: second moments and their costs, estimated on the pass's paths (sized by the kernel)
+        self.pass_s2c = []
+        self.pass_cost_c = np.zeros(0)
 
     def part(self, spp: int, done: int, k: int) -> int:
         """The samples per pixel of part ``k`` of a render call of ``spp``, ``done`` of them
@@ -830,7 +862,9 @@ class EARS:
         cell = (self.grid.cell_of(si), self.coarse.cell_of(si))
         classic = mi.Bool(False)
         n_r = None
-        if self.mode == "classic" and self.forced is None:
+        # (a classic pass that estimates the learned roulette: the table's factors, raw)
+        estimating = raw and self.mode == "classic" and self.alternative == "learned"
+        if self.mode == "classic" and self.forced is None and not estimating:
             n, classic = dr.full(mi.Float, 1.0, dr.width(active)), mi.Bool(True)
         elif self.forced is not None:
             n = dr.clip(self.forced(sampler, active), self.rr_min, self.split_max)
@@ -855,6 +889,10 @@ class EARS:
                 smooth = mi.has_flag(si.bsdf().flags(), mi.BSDFFlags.Smooth)
             classic = (f_m < 0) | lnot(smooth)
             n = dr.select(classic, 1.0, dr.clip(n, self.rr_min, self.split_max))
+            # (the learned roulette's own rule vertices: a raw factor below zero)
+            n_r = dr.select(classic, -1.0, n_r)
+            if estimating:      # (the pass itself classic: n one, the rule at every vertex)
+                n, classic = dr.full(mi.Float, 1.0, dr.width(active)), mi.Bool(True)
         beta_nz = dr.any(mi.unpolarized_spectrum(beta) != 0)
         n = dr.select(active & beta_nz, n, 0.0)
         if raw:
@@ -880,7 +918,7 @@ class EARS:
         return dr.select(depth + 1 >= self.rr_depth, q, 1.0)
 
     def survivals(self, beta, eta, depth, pre, q, classic, inv_p, Q, active, scale=1.0,
-                  raw=None):
+                  raw=None, scales=(1.0,)):
         """The running products 1/P (the pass's survivals) and Q (the alternative's inverse
         survivals) of the estimate of an alternative roulette (see the module docstring), past
         the decision at a vertex reached with ``beta`` (the pass's weights), ``eta``,
@@ -890,15 +928,21 @@ class EARS:
         beta Q / P ``scale`` (``scale``: the pass's own weight that the alternative does not
         apply, the first hit's 1/n of a split pass's first copy); the alternative is the
         throughput rule, or with ``raw`` (the vertex's unclamped roulette factor,
-        :meth:`factor`) the learned roulette, which applies the rule at the same ``classic``
-        vertices."""
+        :meth:`factor`) the learned roulette, which applies the rule at its own rule vertices
+        (nothing learned, no smooth lobe: ``raw`` below zero).  ``Q`` is a list, one per
+        alternative; ``scales``: with ``raw``, each alternative's factors scaled by its scale
+        (:meth:`compare`)."""
         q_pass = dr.select(classic, self.classic_survival(beta, eta, depth, pre), q)
-        rho = Q * inv_p * scale
-        r = self.classic_survival(beta * rho, eta, depth, pre)
-        if raw is not None:
-            r = dr.select(classic, r, dr.clip(raw * rho, self.rr_min, 1.0))
-        ok = active & (q_pass > 0) & (r > 0)
-        return (dr.select(ok, inv_p * q_pass, inv_p), dr.select(ok, Q * dr.rcp(r), Q))
+        on = active & (q_pass > 0)
+        Q_out = []
+        for Q_s, s in zip(Q, scales):
+            rho = Q_s * inv_p * scale
+            r = self.classic_survival(beta * rho, eta, depth, pre)
+            if raw is not None:
+                r = dr.select(raw < 0.0, r, dr.clip(s * raw * rho, self.rr_min, 1.0))
+            # (r is zero only where the BSDF sample's weight is: the path ends in both)
+            Q_out.append(dr.select(on & (r > 0), Q_s * dr.rcp(r), Q_s))
+        return dr.select(on, inv_p * q_pass, inv_p), Q_out
 
     # ---- between passes ------------------------------------------------------------------
     def learn(self, spp: int, seconds: float = 0.0):
@@ -961,10 +1005,12 @@ class EARS:
         self.inv_pixel = mi.Float((1.0 / np.sqrt(ip2)).astype(np.float32))
         self.learned = ok_any
         self.v_rel, self.cost = v_rel, cost
-        if self.pass_cost_c > 0 and v_rel > 0:
-            v, v_c = self.relative_variances(s1, s2, host(self.pass_s2c), spp,
-                                             self.pass_denominators(s1, spp))
-            self.compare(v, cost, v_c, self.pass_cost_c / max(s1.size * spp, 1))
+        if self.pass_cost_c.size and self.pass_cost_c.min() > 0 and v_rel > 0:
+            ip2 = self.pass_denominators(s1, spp)
+            v_c = [self.relative_variances(s1, s2, host(s2c), spp, ip2) for s2c in
+                   self.pass_s2c]
+            self.compare(v_c[0][0], cost, [x[1] for x in v_c],
+                         self.pass_cost_c / max(s1.size * spp, 1))
             # (not settled while an estimate is still to decide: a settled pass records
             # nothing and estimates nothing)
             if self.split_pending:
@@ -1039,16 +1085,38 @@ class EARS:
         alternative's, ``v_c`` and ``c_c``, estimated on the same paths
         (:meth:`Wavefront.roulette_kernel`).  A roulette pass against the throughput rule
         (``gain``): below ``KERNEL_COST`` the learned roulette does not pay for its kernel, and
-        the rest of the render runs ``plain``.  A split pass against the learned roulette
+        the rest of the render runs ``plain``.  A classic pass (the rule) against the learned
+        roulette at each of ``ROULETTE_SCALES`` (``v_c``, ``c_c`` one per scale): the largest
+        gain (``young_gain``) sends the render plain at once where a roulette pass's estimate
+        that large would (below ``KERNEL_COST``, and under ``auto`` below ``SPLIT_TRY``); else
+        the first roulette pass still decides.  A split pass against the learned roulette
         (``split_gain``): below ``SPLIT_COST`` the splitting does not pay for its copies' time,
         and the render goes on with roulette only.  Policy ``auto`` waits, where the roulette
         gains ``SPLIT_TRY`` or more, for the split pass's estimate, and goes plain where
         neither the roulette nor the splitting (gain x split_gain / ``SPLIT_COST``) is worth
         ``KERNEL_COST`` over the rule."""
-        ratio = max(v_c, 0.0) * c_c / (max(v, 1e-30) * c)
+        v_c, c_c = np.atleast_1d(v_c), np.atleast_1d(c_c)
+        if self.mode == "classic":
+            # (the pass is the rule, its alternatives the learned roulette at each of
+            # ``ROULETTE_SCALES``: the gain read the way a roulette pass reads it, the
+            # largest over the scales)
+            ratios = v * c / (np.maximum(v_c, 1e-30) * c_c)
+            j = int(np.argmax(ratios))
+            self.gain_scale = ROULETTE_SCALES[j] if ratios.size == len(ROULETTE_SCALES) \
+                else 1.0
+            self.young_gain = young = max(float(ratios[j]), 0.0)
+            # (plain at once only where the first roulette pass's estimate, were it this
+            # large, would send the render plain at once: else that pass decides)
+            if young < KERNEL_COST and not (self.policy == "auto" and young >= SPLIT_TRY):
+                self.gain, self.rule_cost = young, c
+                self.go_plain()
+            return
+        else:
+            ratio = max(float(v_c[0]), 0.0) * float(c_c[0]) / (max(v, 1e-30) * c)
+            c_c = float(c_c[0])
         if self.mode == "split":
             self.split_gain = ratio
-            if self.gain is None:       # (no roulette pass estimated the rule: no fallback)
+            if self.gain is None:       # (nothing estimated the rule: no fallback)
                 return
             # (the better learned mode against the rule, each per its kernel's time)
             best = max(self.gain, self.gain * ratio / SPLIT_COST)
@@ -1118,7 +1186,8 @@ class EARS:
         renewed by every learning pass it runs).  ``auto``: roulette until a roulette pass
         estimated the rule, then split where that gain is ``SPLIT_TRY`` or more, then split
         while the split passes estimate a gain of ``SPLIT_COST`` or more over the roulette,
-        else roulette (plain, :meth:`compare`, before any of these)."""
+        else roulette (plain, :meth:`compare`, before any of these, or after the classic
+        pass that estimates the learned roulette)."""
         if self.forced is not None:
             return "roulette" if self.policy == "never" else "split"
         if self.plain:
@@ -1205,15 +1274,21 @@ class EARS:
     def mature(self) -> bool:
         """Whether the learned modes may run: under the policies whose first roulette pass's
         estimate decides (``never``, ``auto``), once the pixels hold ``MATURE_SPP`` samples
-        (classic passes until then); under the others at once."""
+        (classic passes until then, the ones with a table learned estimating the learned
+        roulette, :attr:`alternative`); under the others at once."""
         return self.policy not in ("never", "auto") or self.pix_n.min() >= MATURE_SPP
 
     @property
     def alternative(self):
         """What a learning pass of the current mode estimates on its own paths besides itself
-        (:meth:`compare`): a roulette pass of the ``never`` and ``auto`` policies the
-        throughput rule (``"rule"``), a split pass of the ``auto`` policy the learned roulette
-        (``"roulette"``); else None."""
+        (:meth:`compare`): under the ``never`` and ``auto`` policies a classic pass with a
+        table learned, before the pixels hold ``MATURE_SPP`` samples (:attr:`mature`), the
+        learned roulette with that table at each of ``ROULETTE_SCALES`` (``"learned"``), and a
+        roulette pass the throughput rule (``"rule"``); a split pass of the ``auto`` policy
+        the learned roulette (``"roulette"``); else None."""
+        if self.mode == "classic" and self.policy in ("never", "auto") and self.learned \
+                and self.forced is None and not self.mature:
+            return "learned"
         if self.mode == "roulette" and self.policy in ("never", "auto"):
             return "rule"
         if self.mode == "split" and self.policy == "auto":
@@ -1374,15 +1449,24 @@ def record_sums(ears, cell, vals, active, mode=DIRECT):
     dr.scatter_reduce(dr.ReduceOp.Max, ears.parent, cell[1], cell[0], active, mode=mode)
 
 
+def predict_start(c0, k0, n: int):
+    """An alternative's estimate (see :func:`predict_add`) at its start, for each of ``n``
+    alternatives (lists: Y, S, K): the first contribution ``c0``, of cost ``k0``."""
+    return [c0 * c0 for _ in range(n)], [mi.Float(c0) for _ in range(n)], \
+        [mi.Float(k0) for _ in range(n)]
+
+
 def predict_add(Y, S, K, lc, k, inv_p, Q, on):
     """An alternative's estimate (see the module docstring, :meth:`EARS.survivals`) past a
     contribution ``lc`` (the luminance the pass adds, its weights in) of cost ``k``, where
     ``on``: its second moment Y, the running S and its cost K."""
     bare = lc * inv_p
-    Y = Y + dr.select(on, lc * (bare * Q + 2.0 * S), 0.0)
-    S = S + dr.select(on, bare * Q, 0.0)
-    K = K + dr.select(on, k * safe_div(1.0, inv_p * Q), 0.0)
-    return Y, S, K
+    out = [], [], []
+    for Y_s, S_s, K_s, Q_s in zip(Y, S, K, Q):
+        out[0].append(Y_s + dr.select(on, lc * (bare * Q_s + 2.0 * S_s), 0.0))
+        out[1].append(S_s + dr.select(on, bare * Q_s, 0.0))
+        out[2].append(K_s + dr.select(on, k * safe_div(1.0, inv_p * Q_s), 0.0))
+    return out
 
 
 def split_weight(n, m):
@@ -1641,11 +1725,16 @@ class Wavefront:
         learn = ears.recording
         L, valid, cost, traced, pred = self.roulette_kernel(
             scene, sel, sampler, ray, pixel, depth_limit(integ.max_depth), learn)
-        if pred is not None:    # (the throughput rule's second moment and cost, estimated)
-            dr.scatter_reduce(dr.ReduceOp.Add, ears.pass_s2c, pred[0], pixel, mode=DIRECT)
+        if pred is not None:    # (the alternatives' second moments and costs, estimated)
+            n_alt = len(pred[0])
+            if len(ears.pass_s2c) != n_alt:
+                ears.pass_s2c = [dr.zeros(mi.Float, dr.width(ears.pass_s1)) for _ in pred[0]]
+                ears.pass_cost_c = np.zeros(n_alt)
             if self._pred is None:
-                self._pred = dr.zeros(mi.Float, 1)
-            dr.scatter_reduce(dr.ReduceOp.Add, self._pred, pred[1], mi.UInt32(0), mode=FLUSH)
+                self._pred = dr.zeros(mi.Float, n_alt)
+            for j, (Y, K) in enumerate(zip(*pred)):
+                dr.scatter_reduce(dr.ReduceOp.Add, ears.pass_s2c[j], Y, pixel, mode=DIRECT)
+                dr.scatter_reduce(dr.ReduceOp.Add, self._pred, K, mi.UInt32(j), mode=FLUSH)
             ears.pass_cost_c += CAMERA_COST * dr.width(ray)
         # the batch's work and rays summed in the same kernel (one expanded element per
         # thread), read once the pass is done (:meth:`kernel_totals`): no reduction kernel and
@@ -1667,7 +1756,7 @@ class Wavefront:
         work, rays = float(self._totals[0][0]), int(self._totals[1][0])
         self._totals = None
         if self._pred is not None:
-            self.ears.pass_cost_c += float(self._pred[0])
+            self.ears.pass_cost_c += host(self._pred)
             self._pred = None
         self.stats["continuation_rays"] += rays
         self.stats["shadow_rays"] += int(round((work - rays) / SHADOW_COST))
@@ -1788,10 +1877,17 @@ class Wavefront:
         alt = ears.alternative if learn else None
         predict = alt is not None
         versus = alt == "roulette"
+        # (the learned roulette's factors, raw, where a split or a classic pass estimates it)
+        use_raw = alt in ("roulette", "learned")
         scale = dr.maximum(n, 1.0) if versus else mi.Float(1.0)
+        # (a classic pass estimates the learned roulette at each of the factors' scales, one
+        # (Y, S, K, Q) each; the others one alternative)
+        scales = ROULETTE_SCALES if alt == "learned" else (1.0,)
         # (as wide as the loop: unused, they stay in its state, see record_once)
         zero, one = widen(mi.Float(0.0), alive), widen(mi.Float(1.0), alive)
-        Y, S, K, inv_p, Q = zero, mi.Float(zero), mi.Float(zero), one, mi.Float(one)
+        inv_p = one
+        Y, S, K = predict_start(zero, zero, len(scales))
+        Q = predict_start(one, one, len(scales))[1]
         # the first hit's light samples: once where n < 1 (roulette drops the continuation
         # alone), else in each of its m = floor(n + u) copies, weighted 1/m like the rest of
         # it (the others take theirs when they restart)
@@ -1806,9 +1902,9 @@ class Wavefront:
             # (the alternative takes them once, after the first hit's decision where n >= 1,
             # where the pass's survival is one: counted before it, unscaled)
             c0 = luminance(L - c_nee) + luminance(c_nee) * scale
-            Y, S, K = c0 * c0, mi.Float(c0), mi.Float(cost)
+            Y, S, K = predict_start(c0, cost, len(scales))
             inv_p, Q = ears.survivals(beta, eta, depth, pre, dr.minimum(n, 1.0), classic, inv_p,
-                                      Q, alive, raw=raw if versus else None)
+                                      Q, alive, raw=raw if use_raw else None, scales=scales)
         # floor(n + u) copies of the first hit's continuation, each weighted 1/n (n < 1:
         # roulette) or 1/m (split_weight), run one after another in the lane
         alive &= copies > 0
@@ -1851,8 +1947,10 @@ class Wavefront:
                 on = first if versus else mi.Bool(True)
                 Y, S, K = predict_add(Y, S, K, luminance(c) * scale, k, inv_p, Q, on)
                 inv_p2, Q2 = ears.survivals(beta, eta, depth, pre, q, classic, inv_p, Q,
-                                            alive & on, scale, raw if versus else None)
-                inv_p, Q = dr.select(on, inv_p2, inv_p), dr.select(on, Q2, Q)
+                                            alive & on, scale, raw if use_raw else None,
+                                            scales)
+                inv_p = dr.select(on, inv_p2, inv_p)
+                Q = dr.select(on, Q2, Q)
             alive &= sampler.next_1d() < q
             beta *= copy_weight(q)
             end = active & lnot(alive)
