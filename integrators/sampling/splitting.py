@@ -682,11 +682,11 @@ class EARS:
         #: splitting's efficiency relative to the learned roulette's, as estimated from the
         #: last learning split pass (policy ``auto``, :meth:`compare`)
         self.split_gain = None
-        #: the scale of ``ROULETTE_SCALES`` at which the classic pass's estimate of ``gain``
-        #: was largest (1 where a roulette pass estimated it)
-        self.gain_scale = None
-        #: the largest of those estimates (:meth:`compare`)
+        #: a classic pass's estimates of the learned roulette's gain over the rule with the
+        #: young table at each of ``ROULETTE_SCALES`` (:meth:`compare`): the largest, and the
+        #: scale it was read at; None before one
         self.young_gain = None
+        self.gain_scale = None
         #: set once the prediction found the learned roulette not worth its kernel: the passes
         #: then run ``plain`` (the integrator's own kernel, the throughput rule, no records)
         self.plain = False
